@@ -1,0 +1,1 @@
+"""The `fbcpr` command line (installed as the package `fbcpr.cli`)."""

@@ -1,0 +1,102 @@
+"""The one observation function: 358 float32 values in the heading frame, from (qpos, qvel) by kinematics.
+
+Layout (all in the heading frame: root yaw removed, origin at the root):
+  root height (1) | positions of the 23 non-root bodies relative to the root (69)
+  | orientations of all 24 bodies as 6-D tangent-normal vectors (144)
+  | linear velocities of the 24 bodies (72) | angular velocities of the 24 bodies (72).
+The first 214 values are the pose part used by tracking and goal distances.
+"""
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+N_BODIES = 24
+OBS_DIM = 358
+
+ROOT_HEIGHT = slice(0, 1)
+BODY_POS = slice(1, 70)
+BODY_ROT = slice(70, 214)
+BODY_LINVEL = slice(214, 286)
+BODY_ANGVEL = slice(286, 358)
+POSE = slice(0, 214)
+
+#: Named slices of the observation vector, for users and for reward code.
+LAYOUT: dict[str, slice] = {
+    "root_height": ROOT_HEIGHT,
+    "body_pos": BODY_POS,
+    "body_rot": BODY_ROT,
+    "body_linvel": BODY_LINVEL,
+    "body_angvel": BODY_ANGVEL,
+    "pose": POSE,
+}
+
+
+def heading_rotation(root_xmat: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotations about z by the yaw of the root's forward (x) axis."""
+    fwd = root_xmat[..., :, 0]
+    yaw = np.arctan2(fwd[..., 1], fwd[..., 0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot = np.zeros(yaw.shape + (3, 3))
+    rot[..., 0, 0], rot[..., 0, 1] = c, -s
+    rot[..., 1, 0], rot[..., 1, 1] = s, c
+    rot[..., 2, 2] = 1.0
+    return rot
+
+
+def assemble(xpos: np.ndarray, xmat: np.ndarray, cvel: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """Observation from world-frame body kinematics, vectorized over a leading batch axis.
+
+    xpos (N,24,3), xmat (N,24,3,3), cvel (N,24,6) as MuJoCo's [angular, linear at com],
+    com (N,3) the root subtree's centre of mass (the point cvel's linear part refers to).
+    """
+    n = xpos.shape[0]
+    rot_h_t = np.swapaxes(heading_rotation(xmat[:, 0]), -1, -2)  # world -> heading
+    root = xpos[:, :1]
+    rel = np.einsum("nij,nbj->nbi", rot_h_t, xpos[:, 1:] - root)
+    local_rot = np.einsum("nij,nbjk->nbik", rot_h_t, xmat)
+    tan_norm = np.concatenate([local_rot[..., :, 0], local_rot[..., :, 2]], axis=-1)
+    ang = cvel[..., :3]
+    lin = cvel[..., 3:] + np.cross(ang, xpos - com[:, None, :])
+    lin_h = np.einsum("nij,nbj->nbi", rot_h_t, lin)
+    ang_h = np.einsum("nij,nbj->nbi", rot_h_t, ang)
+    out = np.concatenate(
+        [xpos[:, 0, 2:3], rel.reshape(n, -1), tan_norm.reshape(n, -1), lin_h.reshape(n, -1), ang_h.reshape(n, -1)],
+        axis=1,
+    )
+    return out.astype(np.float32)
+
+
+def read_kinematics(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, ...]:
+    """Run the kinematic passes on data's (qpos, qvel) and copy what `assemble` needs."""
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    mujoco.mj_comVel(model, data)
+    return data.xpos[1:].copy(), data.xmat[1:].reshape(-1, 3, 3).copy(), data.cvel[1:].copy(), data.subtree_com[1].copy()
+
+
+def observe(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, data: mujoco.MjData | None = None) -> np.ndarray:
+    """Observation(s) for states (qpos (...,76), qvel (...,75)); returns (..., 358) float32.
+
+    Uses kinematics only (no dynamics, no contacts), so it serves the env, motion clips and goals alike.
+    """
+    qpos = np.asarray(qpos, dtype=np.float64)
+    qvel = np.asarray(qvel, dtype=np.float64)
+    if qpos.shape[-1] != model.nq or qvel.shape[-1] != model.nv or qpos.shape[:-1] != qvel.shape[:-1]:
+        raise ValueError(
+            f"observe: expected qpos (..., {model.nq}) and qvel (..., {model.nv}) with matching batch shape, "
+            f"got {qpos.shape} and {qvel.shape}"
+        )
+    batch = qpos.shape[:-1]
+    qp, qv = qpos.reshape(-1, model.nq), qvel.reshape(-1, model.nv)
+    n = qp.shape[0]
+    d = data if data is not None else mujoco.MjData(model)
+    xpos = np.empty((n, N_BODIES, 3))
+    xmat = np.empty((n, N_BODIES, 3, 3))
+    cvel = np.empty((n, N_BODIES, 6))
+    com = np.empty((n, 3))
+    for i in range(n):
+        d.qpos[:] = qp[i]
+        d.qvel[:] = qv[i]
+        xpos[i], xmat[i], cvel[i], com[i] = read_kinematics(model, d)
+    return assemble(xpos, xmat, cvel, com).reshape(batch + (OBS_DIM,))

@@ -1,0 +1,1 @@
+"""Motion clips for the SMPL humanoid: format, importers, retargeting and the motion library."""
