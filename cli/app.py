@@ -1,9 +1,11 @@
-"""Typer app behind the `fbcpr` console script. Each command group lives in its own module."""
+"""Typer app behind the `fbcpr` console script. Each command group lives in its own module and registers itself here."""
 from __future__ import annotations
 
 import typer
 
 app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid.", no_args_is_help=True)
+
+# Command modules: each defines `register(app: typer.Typer) -> None`. Add one import + one call per module.
 
 
 def main() -> None:
