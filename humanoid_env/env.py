@@ -1,0 +1,187 @@
+"""Gymnasium environment for one SMPL humanoid: PD control at 30 Hz on a 450 Hz MuJoCo simulation.
+
+An action in [-1, 1]^69 is a PD target placed on each joint's range (the actuators' ctrlrange equals the
+joint range). One step runs `mujoco.mj_step` for 15 substeps; the observation comes from the one observation
+function (`humanoid_env.observation`). A simulation that diverges (MuJoCo warnings, NaN or huge velocities)
+ends the episode with the last good observation and `info["diverged"] = True`; nothing raises.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Protocol
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from humanoid_env.model import N_SUBSTEPS, NQ, NU, NV, load_model
+from humanoid_env.observation import OBS_DIM, assemble, read_kinematics
+
+#: RewardFn(obs (N,358), action (N,69) | None, qpos (N,76), qvel (N,75)) -> (N,), on the next state.
+RewardFn = Callable[[np.ndarray, "np.ndarray | None", np.ndarray, np.ndarray], np.ndarray]
+#: TerminationFn(obs (N,358), qpos (N,76), qvel (N,75)) -> (N,) bool, on the next state.
+TerminationFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+#: Warnings that mean the state was unusable (MuJoCo then resets the data on its own).
+DIVERGENCE_WARNINGS = (
+    int(mujoco.mjtWarning.mjWARN_BADQPOS),
+    int(mujoco.mjtWarning.mjWARN_BADQVEL),
+    int(mujoco.mjtWarning.mjWARN_BADQACC),
+)
+#: Default bound on |qvel| (m/s for the root, rad/s for hinges) beyond which a simulation counts as diverged.
+MAX_QVEL = 500.0
+DEFAULT_EPISODE_STEPS = 300
+
+
+class InitSampler(Protocol):
+    """Anything that draws initial states: `humanoid_env.inits` samplers or a motion library."""
+
+    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def resolve_reward(reward: RewardFn | str | None) -> RewardFn | None:
+    """A reward callable from a callable or a task name (looked up lazily in `humanoid_env.tasks`)."""
+    if reward is None or callable(reward):
+        return reward
+    if isinstance(reward, str):
+        from humanoid_env.tasks import get_reward  # lazy: the env works without the task registry
+
+        return get_reward(reward)
+    raise TypeError(f"reward must be a callable, a task name or None, got {type(reward).__name__}")
+
+
+def pd_targets(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """(mid, half) of each actuator's ctrlrange, so that ctrl = mid + action * half."""
+    lo, hi = model.actuator_ctrlrange[:, 0].copy(), model.actuator_ctrlrange[:, 1].copy()
+    return (lo + hi) / 2, (hi - lo) / 2
+
+
+def check_state(qpos: Any, qvel: Any, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a user-given state: shapes (n,76)/(n,75) (or (76,)/(75,) when n is None) and finite values."""
+    qp, qv = np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
+    want_p, want_v = ((NQ,), (NV,)) if n is None else ((n, NQ), (n, NV))
+    if qp.shape != want_p or qv.shape != want_v:
+        raise ValueError(f"reset options: expected qpos {want_p} and qvel {want_v}, got {qp.shape} and {qv.shape}")
+    if not (np.isfinite(qp).all() and np.isfinite(qv).all()):
+        raise ValueError("reset options: qpos and qvel must be finite (found NaN or inf)")
+    return qp, qv
+
+
+def _state_options(options: dict | None) -> tuple[Any, Any] | None:
+    if not options or ("qpos" not in options and "qvel" not in options):
+        return None
+    if "qpos" not in options or "qvel" not in options:
+        raise ValueError("reset options: give both 'qpos' and 'qvel' to set an exact state")
+    return options["qpos"], options["qvel"]
+
+
+class HumanoidEnv(gym.Env):
+    """One SMPL humanoid. `reset(options={"qpos", "qvel"})` sets an exact state; `info` holds qpos/qvel copies."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(
+        self,
+        init: InitSampler | None = None,
+        reward: RewardFn | str | None = None,
+        termination: TerminationFn | None = None,
+        max_episode_steps: int = DEFAULT_EPISODE_STEPS,
+        max_qvel: float = MAX_QVEL,
+        render_mode: str | None = None,
+        width: int = 320,
+        height: int = 240,
+    ) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+        from humanoid_env.inits import DefaultInit
+
+        self.model = load_model()
+        self.data = mujoco.MjData(self.model)
+        self.init = init if init is not None else DefaultInit()
+        self.reward_fn = resolve_reward(reward)
+        self.termination_fn = termination
+        self.max_episode_steps = int(max_episode_steps)
+        self.max_qvel = float(max_qvel)
+        self.render_mode = render_mode
+        self._size = (height, width)
+        self._renderer = None
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (NU,), np.float32)
+        self._mid, self._half = pd_targets(self.model)
+        self._act = np.empty(NU)
+        self._ctrl = np.empty(NU)
+        self._obs = np.zeros(OBS_DIM, np.float32)
+        self._steps = 0
+
+    def _observe(self) -> np.ndarray:
+        xpos, xmat, cvel, com = read_kinematics(self.model, self.data)
+        return assemble(xpos[None], xmat[None], cvel[None], com[None])[0]
+
+    def _info(self, diverged: bool) -> dict[str, Any]:
+        return {"qpos": self.data.qpos.copy(), "qvel": self.data.qvel.copy(), "diverged": diverged}
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        state = _state_options(options)
+        if state is None:
+            qpos, qvel = self.init.sample(self.np_random, 1)
+            qpos, qvel = check_state(qpos[0], qvel[0])
+        else:
+            qpos, qvel = check_state(*state)
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = qvel
+        mujoco.mj_forward(self.model, self.data)
+        self._steps = 0
+        self._obs = self._observe()
+        return self._obs, self._info(False)
+
+    def _diverged(self, obs: np.ndarray) -> bool:
+        warn = self.data.warning
+        bad = False
+        for w in DIVERGENCE_WARNINGS:
+            if warn[w].number:
+                warn[w].number = 0  # counters accumulate; clear them so the next episode starts clean
+                bad = True
+        return bad or not np.isfinite(obs).all() or np.abs(self.data.qvel).max() > self.max_qvel
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (NU,):
+            raise ValueError(f"action must have shape ({NU},), got {a.shape}")
+        np.clip(a, -1.0, 1.0, out=self._act)
+        np.multiply(self._act, self._half, out=self._ctrl)
+        self._ctrl += self._mid
+        self.data.ctrl[:] = self._ctrl
+        mujoco.mj_step(self.model, self.data, nstep=N_SUBSTEPS)
+        self._steps += 1
+        obs = self._observe()
+        diverged = self._diverged(obs)
+        if diverged:
+            obs = self._obs  # the last good observation: never hand out NaN
+        self._obs = obs
+        info = self._info(diverged)
+        reward = 0.0
+        terminated = diverged
+        if not diverged:
+            if self.reward_fn is not None:
+                reward = float(self.reward_fn(obs[None], self._act[None].astype(np.float32), info["qpos"][None], info["qvel"][None])[0])
+            if self.termination_fn is not None:
+                terminated = bool(self.termination_fn(obs[None], info["qpos"][None], info["qvel"][None])[0])
+        truncated = self._steps >= self.max_episode_steps
+        return obs, reward, terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        from humanoid_env.render import TrackRenderer
+
+        if self._renderer is None:
+            self._renderer = TrackRenderer(self.model, *self._size)
+        return self._renderer.render(self.data)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,68 @@
+"""RGB rendering with the MJCF's "track" camera, and video files from frames.
+
+MuJoCo picks its OpenGL backend from the MUJOCO_GL environment variable when it is first imported;
+`humanoid_env` defaults it to "egl" on headless Linux. Without a working backend, `TrackRenderer`
+raises a RuntimeError that says so.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterable
+
+import mujoco
+import numpy as np
+
+CAMERA = "track"
+
+
+class TrackRenderer:
+    """Offscreen renderer of a humanoid's MjData from the tracking camera."""
+
+    def __init__(self, model: mujoco.MjModel, height: int = 240, width: int = 320) -> None:
+        try:
+            self._renderer = mujoco.Renderer(model, height, width)
+        except Exception as err:  # any backend failure: missing library, no display, bad MUJOCO_GL
+            backend = os.environ.get("MUJOCO_GL", "<unset: glfw>")
+            raise RuntimeError(
+                f"no OpenGL renderer available (MUJOCO_GL={backend}): {err}. "
+                "Set MUJOCO_GL=egl (GPU or Mesa EGL) or MUJOCO_GL=osmesa before importing mujoco."
+            ) from err
+        self.model = model
+
+    def render(self, data: mujoco.MjData) -> np.ndarray:
+        """(height, width, 3) uint8 image of data's current state; only derived fields of data are touched."""
+        mujoco.mj_kinematics(self.model, data)
+        mujoco.mj_comPos(self.model, data)
+        mujoco.mj_camlight(self.model, data)
+        self._renderer.update_scene(data, camera=CAMERA)
+        return self._renderer.render()
+
+    def close(self) -> None:
+        self._renderer.close()
+
+
+def renderer_available() -> bool:
+    """Whether an offscreen renderer can be created in this process."""
+    from humanoid_env.model import load_model
+
+    try:
+        TrackRenderer(load_model(), 16, 16).close()
+    except RuntimeError:
+        return False
+    return True
+
+
+def write_video(frames: Iterable[np.ndarray], path: str | Path, fps: int = 30) -> Path:
+    """Write (H,W,3) uint8 frames to a video file (format from the suffix, e.g. .mp4 via ffmpeg)."""
+    import imageio.v2 as imageio
+
+    frames = [np.asarray(f) for f in frames]
+    if not frames:
+        raise ValueError("write_video: no frames to write")
+    if any(f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8 for f in frames):
+        raise ValueError("write_video: frames must be (H, W, 3) uint8 arrays")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    imageio.mimwrite(path, frames, fps=fps)
+    return path

@@ -1,0 +1,164 @@
+"""Batched SMPL humanoid: N simulations stepped on MuJoCo's native thread pool (`mujoco.batch.Batch`).
+
+No per-env Python: controls, stepping (threads in C, results bit-identical to one MjData per env at any
+thread count), kinematics at the new state and the observation of all envs happen in a few batched calls.
+Autoreset mode is SAME_STEP: when an episode ends, the returned observation is already the next episode's
+first one, and `info["final_obs"]`, `info["final_qpos"]`, `info["final_qvel"]` hold the state the step
+reached, for every env (for envs not done it equals the returned one; `info["_final_obs"]` marks the done envs).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+from mujoco import batch as mjbatch
+
+from humanoid_env.env import (
+    DEFAULT_EPISODE_STEPS,
+    DIVERGENCE_WARNINGS,
+    MAX_QVEL,
+    InitSampler,
+    RewardFn,
+    TerminationFn,
+    _state_options,
+    check_state,
+    pd_targets,
+    resolve_reward,
+)
+from humanoid_env.model import N_SUBSTEPS, NU, load_model
+from humanoid_env.observation import N_BODIES, OBS_DIM, assemble
+
+_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
+
+
+class VectorHumanoidEnv(VectorEnv):
+    """num_envs humanoids on num_threads threads (None: all cores); same seed, same rollouts."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(
+        self,
+        num_envs: int,
+        init: InitSampler | None = None,
+        num_threads: int | None = None,
+        reward: RewardFn | str | None = None,
+        termination: TerminationFn | None = None,
+        max_episode_steps: int = DEFAULT_EPISODE_STEPS,
+        max_qvel: float = MAX_QVEL,
+    ) -> None:
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        if max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+        if num_threads is not None and num_threads < 1:
+            raise ValueError(f"num_threads must be >= 1 or None (all cores), got {num_threads}")
+        from humanoid_env.inits import DefaultInit
+
+        self.num_envs = int(num_envs)
+        self.model = load_model()
+        self.init = init if init is not None else DefaultInit()
+        self.reward_fn = resolve_reward(reward)
+        self.termination_fn = termination
+        self.max_episode_steps = int(max_episode_steps)
+        self.max_qvel = float(max_qvel)
+        self.render_mode = None
+        self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NU,), np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+
+        self.batch = mjbatch.Batch(self.model, self.num_envs, nthread=num_threads or 0)
+        b = self.batch
+        self._qpos, self._qvel, self._ctrl = b.bind("qpos"), b.bind("qvel"), b.bind("ctrl")
+        self._xpos, self._xmat, self._cvel, self._com = b.bind("xpos"), b.bind("xmat"), b.bind("cvel"), b.bind("subtree_com")
+        self._mid, self._half = pd_targets(self.model)
+        self._act = np.empty((self.num_envs, NU))
+        self._obs = np.zeros((self.num_envs, OBS_DIM), np.float32)
+        self._good_qpos, self._good_qvel = self._qpos.copy(), self._qvel.copy()
+        self._steps = np.zeros(self.num_envs, np.int64)
+        self._np_random, self._np_random_seed = seeding.np_random(None)
+
+    def _observe(self, ids: np.ndarray | None = None) -> np.ndarray:
+        sel = slice(None) if ids is None else ids
+        xmat = self._xmat[sel, 1:].reshape(-1, N_BODIES, 3, 3)
+        return assemble(self._xpos[sel, 1:], xmat, self._cvel[sel, 1:], self._com[sel, 1])
+
+    def _set_states(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        """Reset envs ids to exact states and compute their observations."""
+        self.batch.reset(ids, stage=int(mujoco.mjtStage.mjSTAGE_NONE))
+        self._qpos[ids] = qpos
+        self._qvel[ids] = qvel
+        self.batch.warning[ids] = 0
+        self.batch.forward(ids, stage=_VEL)
+        self._obs[ids] = self._observe(ids)
+        self._good_qpos[ids], self._good_qvel[ids] = qpos, qvel
+        self._steps[ids] = 0
+
+    def _sample(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        qpos, qvel = self.init.sample(self.np_random, k)
+        return check_state(qpos, qvel, k)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None:
+            if not isinstance(seed, (int, np.integer)):
+                raise TypeError(f"seed must be an int or None, got {type(seed).__name__}")
+            self._np_random, self._np_random_seed = seeding.np_random(int(seed))
+        state = _state_options(options)
+        qpos, qvel = self._sample(self.num_envs) if state is None else check_state(*state, self.num_envs)
+        self._set_states(np.arange(self.num_envs), qpos, qvel)
+        info = {"qpos": self._qpos.copy(), "qvel": self._qvel.copy(), "diverged": np.zeros(self.num_envs, bool)}
+        return self._obs.copy(), info
+
+    def _advance(self) -> np.ndarray:
+        """Step all sims 15 substeps; (N,) mask of sims MuJoCo refused to step (they keep their state)."""
+        try:
+            self.batch.step(nstep=N_SUBSTEPS, stage=_VEL)
+        except mjbatch.SimulationError as err:
+            failed = np.zeros(self.num_envs, bool)
+            failed[err.ids] = True
+            return failed
+        return np.zeros(self.num_envs, bool)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        a = np.asarray(actions)
+        if a.shape != (self.num_envs, NU):
+            raise ValueError(f"actions must have shape ({self.num_envs}, {NU}), got {a.shape}")
+        np.clip(a, -1.0, 1.0, out=self._act)
+        np.multiply(self._act, self._half, out=self._ctrl)
+        self._ctrl += self._mid
+        failed = self._advance()
+
+        obs = self._observe()
+        warn = self.batch.warning
+        diverged = failed | (warn[:, DIVERGENCE_WARNINGS, 0] > 0).any(1)
+        diverged |= ~np.isfinite(obs).all(1) | (np.abs(self._qvel).max(1) > self.max_qvel)
+        qpos, qvel = self._qpos.copy(), self._qvel.copy()
+        if diverged.any():  # keep the last good state and observation: never hand out NaN
+            warn[diverged] = 0
+            obs[diverged], qpos[diverged], qvel[diverged] = self._obs[diverged], self._good_qpos[diverged], self._good_qvel[diverged]
+
+        if self.reward_fn is not None:
+            reward = np.asarray(self.reward_fn(obs, self._act.astype(np.float32), qpos, qvel), dtype=np.float64).reshape(self.num_envs)
+            reward[diverged] = 0.0
+        else:
+            reward = np.zeros(self.num_envs)
+        terminated = diverged.copy()
+        if self.termination_fn is not None:
+            terminated |= np.asarray(self.termination_fn(obs, qpos, qvel), dtype=bool).reshape(self.num_envs)
+        self._steps += 1
+        truncated = self._steps >= self.max_episode_steps
+        done = terminated | truncated
+
+        self._obs, self._good_qpos, self._good_qvel = obs, qpos, qvel
+        info: dict[str, Any] = {"diverged": diverged, "final_obs": obs.copy(), "final_qpos": qpos, "final_qvel": qvel, "_final_obs": done}
+        ids = np.flatnonzero(done)
+        if len(ids):
+            self._good_qpos, self._good_qvel = qpos.copy(), qvel.copy()
+            self._set_states(ids, *self._sample(len(ids)))
+        info["qpos"], info["qvel"] = self._good_qpos.copy(), self._good_qvel.copy()
+        return self._obs.copy(), reward, terminated, truncated, info
