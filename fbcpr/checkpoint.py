@@ -1,0 +1,252 @@
+"""Checkpoint directories: safetensors + YAML + JSON only, written atomically, verified on load.
+
+Layout of a checkpoint directory:
+    model.safetensors           model weights and normalizer statistics
+    config.yaml                 the run config (or just the `model:` section)
+    manifest.json               format version, library versions, sha256 and tensor shapes of every file
+    trainer_state.safetensors   optional: target nets, optimizer moments; JSON scalars/counters/RNG in its header
+    reward_buffer.safetensors   optional: next_obs, qpos, qvel subsample for reward prompts
+    replay_buffer.safetensors   optional: the whole replay buffer (exact resume)
+
+`save_checkpoint` writes everything into a temporary sibling directory and moves it into place with
+renames, so an interrupted save leaves the previous checkpoint readable. `load_checkpoint` never
+unpickles: it only reads safetensors, JSON and `yaml.safe_load`.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import safetensors
+import torch
+import yaml
+from safetensors.torch import load_file, save_file
+
+import fbcpr
+from fbcpr.config import Config, ConfigError, ModelConfig, config_from_dict, config_to_dict, model_config_from_dict
+from fbcpr.model import FBCPRModel
+
+FORMAT = "fbcpr-checkpoint"
+FORMAT_VERSION = 1
+MODEL_FILE, CONFIG_FILE, MANIFEST_FILE = "model.safetensors", "config.yaml", "manifest.json"
+TRAINER_FILE, REWARD_FILE, REPLAY_FILE = "trainer_state.safetensors", "reward_buffer.safetensors", "replay_buffer.safetensors"
+REWARD_KEYS = ("next_obs", "qpos", "qvel")
+_META_KEY = "fbcpr_json"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint that is missing, corrupted or does not match its config; the message names the problem."""
+
+
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint: the model, its config, and lazy access to the optional files."""
+
+    path: Path
+    model: FBCPRModel
+    config: Config | ModelConfig
+    manifest: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def model_config(self) -> ModelConfig:
+        return self.config.model if isinstance(self.config, Config) else self.config
+
+    def has(self, name: str) -> bool:
+        return name in self.manifest.get("files", {})
+
+    def trainer_state(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """(tensors, json metadata) of trainer_state.safetensors."""
+        if not self.has(TRAINER_FILE):
+            raise CheckpointError(f"{self.path}: no {TRAINER_FILE} (an inference-only checkpoint cannot be resumed)")
+        return _read_tensors(self.path, TRAINER_FILE, self.manifest)
+
+    def reward_buffer(self) -> dict[str, np.ndarray] | None:
+        """The reward-inference buffer (next_obs, qpos, qvel) as numpy arrays, or None if absent."""
+        if not self.has(REWARD_FILE):
+            return None
+        tensors, _ = _read_tensors(self.path, REWARD_FILE, self.manifest)
+        missing = [k for k in REWARD_KEYS if k not in tensors]
+        if missing:
+            raise CheckpointError(f"{self.path / REWARD_FILE}: missing tensors {missing}")
+        return {k: tensors[k].numpy() for k in REWARD_KEYS}
+
+    def replay_buffer(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]] | None:
+        return _read_tensors(self.path, REPLAY_FILE, self.manifest) if self.has(REPLAY_FILE) else None
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _write_tensors(path: Path, tensors: dict[str, torch.Tensor], meta: dict[str, Any] | None = None) -> None:
+    tensors = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
+    save_file(tensors, str(path), metadata={_META_KEY: json.dumps(meta or {})})
+    with open(path, "rb+") as f:
+        os.fsync(f.fileno())
+
+
+def _read_tensors(root: Path, name: str, manifest: dict[str, Any]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    path = root / name
+    _verify(path, manifest)
+    try:
+        tensors = load_file(str(path))
+        with safetensors.safe_open(str(path), framework="pt") as f:
+            meta = json.loads((f.metadata() or {}).get(_META_KEY, "{}"))
+    except Exception as e:  # safetensors raises several types on malformed files
+        raise CheckpointError(f"{path}: unreadable safetensors file ({e})") from None
+    return tensors, meta
+
+
+def _verify(path: Path, manifest: dict[str, Any]) -> None:
+    entry = manifest.get("files", {}).get(path.name)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: file missing from checkpoint")
+    if entry is None:
+        raise CheckpointError(f"{path}: not listed in {MANIFEST_FILE}")
+    if path.stat().st_size != entry["bytes"] or _sha256(path) != entry["sha256"]:
+        raise CheckpointError(f"{path}: checksum mismatch with {MANIFEST_FILE} (file corrupted or truncated)")
+
+
+def save_checkpoint(
+    path: str | Path,
+    model: FBCPRModel,
+    config: Config | ModelConfig,
+    trainer_state: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
+    reward_buffer: dict[str, np.ndarray | torch.Tensor] | None = None,
+    replay_buffer: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
+) -> Path:
+    """Write a checkpoint directory at `path` atomically (replacing any checkpoint already there)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
+    tmp.mkdir()
+    try:
+        files: dict[str, dict[str, Any]] = {}
+        shapes: dict[str, dict[str, list[int]]] = {}
+
+        def put(name: str, tensors: dict[str, torch.Tensor], meta: dict[str, Any] | None = None) -> None:
+            _write_tensors(tmp / name, tensors, meta)
+            shapes[name] = {k: list(v.shape) for k, v in tensors.items()}
+
+        put(MODEL_FILE, dict(model.state_dict()))
+        if trainer_state is not None:
+            put(TRAINER_FILE, *trainer_state)
+        if reward_buffer is not None:
+            missing = [k for k in REWARD_KEYS if k not in reward_buffer]
+            if missing:
+                raise CheckpointError(f"reward_buffer: missing arrays {missing}")
+            put(REWARD_FILE, {k: torch.as_tensor(np.asarray(reward_buffer[k])).float() for k in REWARD_KEYS})
+        if replay_buffer is not None:
+            put(REPLAY_FILE, *replay_buffer)
+        cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}
+        (tmp / CONFIG_FILE).write_text(yaml.safe_dump(cfg_data, sort_keys=False))
+        for p in sorted(tmp.iterdir()):
+            files[p.name] = {"bytes": p.stat().st_size, "sha256": _sha256(p)}
+        manifest = {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "versions": {"fbcpr": fbcpr.__version__, "torch": torch.__version__, "numpy": np.__version__,
+                         "safetensors": getattr(safetensors, "__version__", "?")},
+            "model": {"obs_dim": model.cfg.obs_dim, "action_dim": model.cfg.action_dim, "z_dim": model.cfg.z_dim},
+            "files": files,
+            "tensors": shapes,
+        }
+        (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
+        _fsync_dir(tmp)
+        _swap_into_place(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _backup_name(path: Path) -> Path:
+    return path.parent / f".{path.name}.previous"
+
+
+def _swap_into_place(tmp: Path, path: Path) -> None:
+    """tmp -> path; an existing checkpoint is kept as a backup until the new one is in place."""
+    backup = _backup_name(path)
+    if path.exists():
+        if backup.exists():
+            shutil.rmtree(backup)
+        os.rename(path, backup)
+    os.rename(tmp, path)
+    _fsync_dir(path.parent)
+    shutil.rmtree(backup, ignore_errors=True)
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Checkpoint:
+    """Load and verify a checkpoint directory; never unpickles. Raises CheckpointError naming the problem."""
+    path = Path(path)
+    if not path.exists() and _backup_name(path).exists():
+        path = _backup_name(path)  # a save was interrupted between its two renames: the old one is intact
+    if not path.is_dir():
+        raise CheckpointError(f"{path}: not a checkpoint directory")
+    try:
+        manifest = json.loads((path / MANIFEST_FILE).read_text())
+    except FileNotFoundError:
+        raise CheckpointError(f"{path / MANIFEST_FILE}: missing") from None
+    except json.JSONDecodeError as e:
+        raise CheckpointError(f"{path / MANIFEST_FILE}: invalid JSON ({e})") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise CheckpointError(f"{path / MANIFEST_FILE}: not an {FORMAT} manifest")
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(f"{path / MANIFEST_FILE}: format_version {manifest.get('format_version')} "
+                              f"is not supported (expected {FORMAT_VERSION})")
+    _verify(path / CONFIG_FILE, manifest)
+    try:
+        data = yaml.safe_load((path / CONFIG_FILE).read_text())
+        config: Config | ModelConfig = (config_from_dict(data) if set(data) != {"model"}
+                                        else model_config_from_dict(data["model"]))
+    except (yaml.YAMLError, ConfigError, TypeError, AttributeError) as e:
+        raise CheckpointError(f"{path / CONFIG_FILE}: invalid config ({e})") from None
+    mcfg = config.model if isinstance(config, Config) else config
+    try:
+        model = FBCPRModel(mcfg)
+    except ValueError as e:
+        raise CheckpointError(f"{path / CONFIG_FILE}: {e}") from None
+    tensors, _ = _read_tensors(path, MODEL_FILE, manifest)
+    load_state_strict(model, tensors, str(path / MODEL_FILE))
+    model.to(device)
+    model.eval()
+    return Checkpoint(path=path, model=model, config=config, manifest=manifest)
+
+
+def load_state_strict(module: torch.nn.Module, tensors: dict[str, torch.Tensor], where: str) -> None:
+    """load_state_dict with errors that name the first missing, unexpected or mis-shaped tensor."""
+    expected = module.state_dict()
+    missing = sorted(set(expected) - set(tensors))
+    unexpected = sorted(set(tensors) - set(expected))
+    if missing:
+        raise CheckpointError(f"{where}: missing tensor {missing[0]!r} ({len(missing)} missing)")
+    if unexpected:
+        raise CheckpointError(f"{where}: unexpected tensor {unexpected[0]!r} (config mismatch?)")
+    for k, v in expected.items():
+        if tuple(tensors[k].shape) != tuple(v.shape) or tensors[k].dtype != v.dtype:
+            raise CheckpointError(f"{where}: tensor {k!r} has shape {tuple(tensors[k].shape)} {tensors[k].dtype}, "
+                                  f"config expects {tuple(v.shape)} {v.dtype}")
+        if v.is_floating_point() and not torch.isfinite(tensors[k]).all():
+            raise CheckpointError(f"{where}: tensor {k!r} contains NaN or inf")
+    module.load_state_dict(tensors)

@@ -1,0 +1,249 @@
+"""Typed run configuration: YAML maps onto nested dataclasses, validated field by field.
+
+Unknown keys, wrong types and out-of-range values raise `ConfigError` naming the dotted key
+(e.g. `agent.relabel_prob: must be in [0, 1], got 1.5`), so a typo never silently falls back to a default.
+Defaults are the paper's values (App. C.5, Tables 3, 5-7, 9); `model.preset` picks a network size.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration value that is unknown, of the wrong type or out of range; the message names the key."""
+
+
+def _check(pred: Callable[[Any], bool], what: str) -> Callable[[Any], str | None]:
+    return lambda v: None if pred(v) else what
+
+
+POSITIVE = _check(lambda v: v > 0, "must be > 0")
+NON_NEGATIVE = _check(lambda v: v >= 0, "must be >= 0")
+PROB = _check(lambda v: 0.0 <= v <= 1.0, "must be in [0, 1]")
+
+
+def _f(default: Any, check: Callable[[Any], str | None] | None = None, **kw: Any) -> Any:
+    """A dataclass field with an optional validator stored in its metadata."""
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda d=default: type(d)(d), metadata={"check": check}, **kw)
+    return field(default=default, metadata={"check": check}, **kw)
+
+
+@dataclass
+class ModelConfig:
+    """Network sizes (Tables 5-7). obs_dim/action_dim may be left null and are then taken from the env."""
+
+    obs_dim: int | None = _f(None, POSITIVE)
+    action_dim: int | None = _f(None, POSITIVE)
+    z_dim: int = _f(256, POSITIVE)
+    hidden_dim: int = _f(1024, _check(lambda v: v >= 2 and v % 2 == 0, "must be an even int >= 2"))
+    hidden_layers: int = _f(2, NON_NEGATIVE)
+    embedding_layers: int = _f(2, _check(lambda v: v >= 2, "must be >= 2"))
+    backward_hidden_dim: int = _f(256, POSITIVE)
+    backward_hidden_layers: int = _f(1, POSITIVE)
+    discriminator_hidden_dim: int = _f(1024, POSITIVE)
+    discriminator_hidden_layers: int = _f(3, POSITIVE)
+    ensemble_size: int = _f(2, _check(lambda v: v >= 1, "must be >= 1"))
+    actor_std: float = _f(0.2, POSITIVE)
+    actor_noise_clip: float = _f(0.3, POSITIVE)
+    norm_obs: bool = _f(True)
+    norm_eps: float = _f(1e-5, POSITIVE)
+
+
+@dataclass
+class AgentConfig:
+    """Learning hyperparameters of Algorithm 1 (Tables 3 and 9)."""
+
+    batch_size: int = _f(1024, _check(lambda v: v >= 2, "must be >= 2"))
+    seq_length: int = _f(8, POSITIVE)
+    discount: float = _f(0.98, _check(lambda v: 0.0 <= v < 1.0, "must be in [0, 1)"))
+    lr_f: float = _f(1e-4, POSITIVE)
+    lr_b: float = _f(1e-5, POSITIVE)
+    lr_actor: float = _f(1e-4, POSITIVE)
+    lr_critic: float = _f(1e-4, POSITIVE)
+    lr_discriminator: float = _f(1e-5, POSITIVE)
+    tau: float = _f(0.005, _check(lambda v: 0.0 < v <= 1.0, "must be in (0, 1]"))
+    ortho_coef: float = _f(100.0, NON_NEGATIVE)
+    fz_coef: float = _f(0.1, NON_NEGATIVE)
+    actor_reg_coef: float = _f(0.01, NON_NEGATIVE)
+    grad_penalty: float = _f(10.0, NON_NEGATIVE)
+    fb_pessimism: float = _f(0.0, NON_NEGATIVE)
+    fz_pessimism: float = _f(0.5, NON_NEGATIVE)
+    critic_pessimism: float = _f(0.5, NON_NEGATIVE)
+    actor_pessimism: float = _f(0.5, NON_NEGATIVE)
+    relabel_prob: float = _f(0.8, PROB)
+    z_expert: float = _f(0.6, PROB)
+    z_online: float = _f(0.2, PROB)
+    z_uniform: float = _f(0.2, PROB)
+    compile: bool = _f(False)
+
+    def validate(self, prefix: str) -> None:
+        total = self.z_expert + self.z_online + self.z_uniform
+        if not math.isclose(total, 1.0, abs_tol=1e-6):
+            raise ConfigError(f"{prefix}.z_expert + z_online + z_uniform: must sum to 1, got {total:g}")
+
+
+@dataclass
+class EnvConfig:
+    """Which environment and demonstrations; the trainer only sees what `fbcpr.envs.make_env` builds."""
+
+    name: str = _f("humanoid", _check(lambda v: v in ("humanoid", "toy"), "must be 'humanoid' or 'toy'"))
+    motions: str = _f("synthetic")
+    fall_prob: float = _f(0.2, PROB)
+    max_episode_steps: int = _f(300, POSITIVE)
+
+
+@dataclass
+class TrainConfig:
+    """Online loop (Tables 3, 4, 9): rollouts, update ratio, buffer, priorities, logging, checkpoints."""
+
+    seed: int = _f(0, NON_NEGATIVE)
+    device: str = _f("cpu", _check(lambda v: v == "cpu" or v.startswith("cuda") or v == "auto", "must be cpu, cuda[:i] or auto"))
+    total_env_steps: int = _f(30_000_000, POSITIVE)
+    num_envs: int = _f(50, POSITIVE)
+    warmup_steps: int = _f(50_000, NON_NEGATIVE)
+    rollout_steps: int = _f(500, POSITIVE)
+    updates_per_rollout: int = _f(50, NON_NEGATIVE)
+    buffer_capacity: int = _f(5_000_000, POSITIVE)
+    buffer_memmap_mb: float = _f(2048.0, NON_NEGATIVE)
+    z_update_every: int = _f(150, POSITIVE)
+    priority_every: int = _f(1_000_000, NON_NEGATIVE)
+    priority_max_clips: int = _f(256, POSITIVE)
+    eval_every: int = _f(0, NON_NEGATIVE)
+    checkpoint_every: int = _f(1_000_000, NON_NEGATIVE)
+    keep_checkpoints: int = _f(3, POSITIVE)
+    log_every: int = _f(10_000, POSITIVE)
+    reward_buffer_size: int = _f(100_000, NON_NEGATIVE)
+    save_buffer: bool = _f(False)
+    torch_threads: int = _f(0, NON_NEGATIVE)
+
+
+@dataclass
+class Config:
+    """A whole run: model sizes, algorithm, environment and training loop."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    agent: AgentConfig = field(default_factory=AgentConfig)
+    env: EnvConfig = field(default_factory=EnvConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+
+#: Network-size presets (hidden sizes per Tables 5-7 for paper-S; paper-M doubles the width).
+PRESETS: dict[str, dict[str, Any]] = {
+    "tiny": dict(z_dim=8, hidden_dim=32, hidden_layers=1, backward_hidden_dim=32, discriminator_hidden_dim=32,
+                 discriminator_hidden_layers=2),
+    "small": dict(z_dim=64, hidden_dim=256, hidden_layers=2, backward_hidden_dim=128, discriminator_hidden_dim=256,
+                  discriminator_hidden_layers=3),
+    "paper-S": dict(z_dim=256, hidden_dim=1024, hidden_layers=2, backward_hidden_dim=256, discriminator_hidden_dim=1024,
+                    discriminator_hidden_layers=3),
+    "paper-M": dict(z_dim=256, hidden_dim=2048, hidden_layers=2, backward_hidden_dim=256, discriminator_hidden_dim=1024,
+                    discriminator_hidden_layers=3),
+}
+
+
+def _type_ok(value: Any, tp: Any) -> tuple[bool, Any]:
+    """Check (and gently coerce int->float) a YAML value against a field annotation."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None:
+            return (type(None) in args), None
+        for a in args:
+            if a is not type(None):
+                ok, v = _type_ok(value, a)
+                if ok:
+                    return True, v
+        return False, value
+    if tp is bool:
+        return isinstance(value, bool), value
+    if tp is int:
+        return isinstance(value, int) and not isinstance(value, bool), value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return False, value
+        return math.isfinite(float(value)), float(value)
+    if tp is str:
+        return isinstance(value, str), value
+    return False, value
+
+
+def _build(cls: type, data: Any, prefix: str) -> Any:
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{prefix}: expected a mapping, got {type(data).__name__}")
+    data = dict(data)
+    if cls is ModelConfig and "preset" in data:
+        name = data.pop("preset")
+        if name not in PRESETS:
+            raise ConfigError(f"{prefix}.preset: unknown preset {name!r}; choose from {sorted(PRESETS)}")
+        data = {**PRESETS[name], **data}
+    hints = typing.get_type_hints(cls)
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        raise ConfigError(f"{prefix}.{unknown[0]}: unknown key (valid keys: {', '.join(sorted(names))})")
+    kwargs = {}
+    for name, value in data.items():
+        key = f"{prefix}.{name}" if prefix else name
+        tp = hints[name]
+        if dataclasses.is_dataclass(tp):
+            kwargs[name] = _build(tp, value, key)
+            continue
+        ok, coerced = _type_ok(value, tp)
+        if not ok:
+            raise ConfigError(f"{key}: expected {getattr(tp, '__name__', str(tp))}, got {value!r}")
+        check = names[name].metadata.get("check")
+        if coerced is not None and check is not None:
+            problem = check(coerced)
+            if problem:
+                raise ConfigError(f"{key}: {problem}, got {value!r}")
+        kwargs[name] = coerced
+    obj = cls(**kwargs)
+    if hasattr(obj, "validate"):
+        obj.validate(prefix)
+    return obj
+
+
+def config_from_dict(data: dict[str, Any]) -> Config:
+    """Build and validate a Config from plain data (as loaded from YAML)."""
+    cfg = _build(Config, data, "")
+    if cfg.agent.batch_size % cfg.agent.seq_length:
+        raise ConfigError(f"agent.batch_size: must be a multiple of agent.seq_length ({cfg.agent.seq_length}), "
+                          f"got {cfg.agent.batch_size}")
+    return cfg
+
+
+def model_config_from_dict(data: dict[str, Any]) -> ModelConfig:
+    """Validate a bare `model:` section (used by checkpoints)."""
+    return _build(ModelConfig, data, "model")
+
+
+def load_config(path: str | Path) -> Config:
+    """Read a YAML config file (safe_load only)."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: invalid YAML ({e})") from None
+    return config_from_dict(data or {})
+
+
+def config_to_dict(cfg: Any) -> dict[str, Any]:
+    """Plain nested dict (YAML-serialisable) of a config dataclass."""
+    return dataclasses.asdict(cfg)
+
+
+def dump_config(cfg: Any) -> str:
+    """YAML text of a config that `load_config` reads back to an equal object."""
+    return yaml.safe_dump(config_to_dict(cfg), sort_keys=False)
