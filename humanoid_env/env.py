@@ -27,6 +27,9 @@ DIVERGENCE_WARNINGS = (
     int(mujoco.mjtWarning.mjWARN_BADQVEL),
     int(mujoco.mjtWarning.mjWARN_BADQACC),
 )
+#: Simulation time at the start of an episode. MuJoCo resets a simulation that went bad to time 0 (and does
+#: not always leave a warning count behind), so a clock below this start means the state was thrown away.
+EPISODE_START_TIME = 1.0
 #: Default bound on |qvel| (m/s for the root, rad/s for hinges) beyond which a simulation counts as diverged.
 MAX_QVEL = 500.0
 DEFAULT_EPISODE_STEPS = 300
@@ -132,6 +135,7 @@ class HumanoidEnv(gym.Env):
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[:] = qpos
         self.data.qvel[:] = qvel
+        self.data.time = EPISODE_START_TIME
         mujoco.mj_forward(self.model, self.data)
         self._steps = 0
         self._obs = self._observe()
@@ -144,6 +148,7 @@ class HumanoidEnv(gym.Env):
             if warn[w].number:
                 warn[w].number = 0  # counters accumulate; clear them so the next episode starts clean
                 bad = True
+        bad = bad or self.data.time < EPISODE_START_TIME
         return bad or not np.isfinite(obs).all() or np.abs(self.data.qvel).max() > self.max_qvel
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:

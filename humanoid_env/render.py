@@ -23,10 +23,11 @@ class TrackRenderer:
         try:
             self._renderer = mujoco.Renderer(model, height, width)
         except Exception as err:  # any backend failure: missing library, no display, bad MUJOCO_GL
-            backend = os.environ.get("MUJOCO_GL", "<unset: glfw>")
+            backend = os.environ.get("MUJOCO_GL", "<unset, so glfw>")
             raise RuntimeError(
-                f"no OpenGL renderer available (MUJOCO_GL={backend}): {err}. "
-                "Set MUJOCO_GL=egl (GPU or Mesa EGL) or MUJOCO_GL=osmesa before importing mujoco."
+                f"no OpenGL renderer available (MUJOCO_GL={backend}): {type(err).__name__}: {err}. "
+                "Set MUJOCO_GL=egl (GPU or Mesa EGL) or MUJOCO_GL=osmesa in the environment before mujoco "
+                "is first imported (importing humanoid_env first picks egl on headless Linux)."
             ) from err
         self.model = model
 

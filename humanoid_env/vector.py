@@ -21,6 +21,7 @@ from mujoco import batch as mjbatch
 from humanoid_env.env import (
     DEFAULT_EPISODE_STEPS,
     DIVERGENCE_WARNINGS,
+    EPISODE_START_TIME,
     MAX_QVEL,
     InitSampler,
     RewardFn,
@@ -74,7 +75,7 @@ class VectorHumanoidEnv(VectorEnv):
 
         self.batch = mjbatch.Batch(self.model, self.num_envs, nthread=num_threads or 0)
         b = self.batch
-        self._qpos, self._qvel, self._ctrl = b.bind("qpos"), b.bind("qvel"), b.bind("ctrl")
+        self._qpos, self._qvel, self._ctrl, self._time = b.bind("qpos"), b.bind("qvel"), b.bind("ctrl"), b.bind("time")
         self._xpos, self._xmat, self._cvel, self._com = b.bind("xpos"), b.bind("xmat"), b.bind("cvel"), b.bind("subtree_com")
         self._mid, self._half = pd_targets(self.model)
         self._act = np.empty((self.num_envs, NU))
@@ -93,6 +94,7 @@ class VectorHumanoidEnv(VectorEnv):
         self.batch.reset(ids, stage=int(mujoco.mjtStage.mjSTAGE_NONE))
         self._qpos[ids] = qpos
         self._qvel[ids] = qvel
+        self._time[ids] = EPISODE_START_TIME
         self.batch.warning[ids] = 0
         self.batch.forward(ids, stage=_VEL)
         self._obs[ids] = self._observe(ids)
@@ -135,7 +137,7 @@ class VectorHumanoidEnv(VectorEnv):
 
         obs = self._observe()
         warn = self.batch.warning
-        diverged = failed | (warn[:, DIVERGENCE_WARNINGS, 0] > 0).any(1)
+        diverged = failed | (warn[:, DIVERGENCE_WARNINGS, 0] > 0).any(1) | (self._time < EPISODE_START_TIME)
         diverged |= ~np.isfinite(obs).all(1) | (np.abs(self._qvel).max(1) > self.max_qvel)
         qpos, qvel = self._qpos.copy(), self._qvel.copy()
         if diverged.any():  # keep the last good state and observation: never hand out NaN
