@@ -1,0 +1,114 @@
+"""What the benchmark evaluates: any object with `act` plus the three prompt functions.
+
+Built in: the floor baselines RandomAgent and ZeroAgent (they ignore z), and BFMAgent, which adapts a loaded
+`fbcpr.BFM` through its prompt layer. Later baselines plug in by offering the same methods.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+from humanoid_env.model import NU
+from humanoid_env.observation import OBS_DIM
+
+
+@runtime_checkable
+class Agent(Protocol):
+    """act(obs (N,358), z (N,d), mean) -> actions (N,69) in [-1,1]; prompts map tasks to latent vectors."""
+
+    z_dim: int
+
+    def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> np.ndarray: ...
+
+    def reward_z(self, reward: str | Callable[..., np.ndarray]) -> np.ndarray: ...
+
+    def goal_z(self, goal_obs: np.ndarray) -> np.ndarray: ...
+
+    def track_z(self, obs_seq: np.ndarray) -> np.ndarray: ...
+
+
+class _Floor:
+    """A z-free baseline: prompts return an empty z, so every task gets the same behaviour."""
+
+    z_dim = 0
+    name = "floor"
+
+    def reward_z(self, reward: str | Callable[..., np.ndarray]) -> np.ndarray:
+        return np.zeros(0, np.float32)
+
+    def goal_z(self, goal_obs: np.ndarray) -> np.ndarray:
+        _check_obs(goal_obs, "goal_z")
+        return np.zeros(0, np.float32)
+
+    def track_z(self, obs_seq: np.ndarray) -> np.ndarray:
+        seq = np.asarray(obs_seq)
+        if seq.ndim != 2 or seq.shape[1] != OBS_DIM:
+            raise ValueError(f"track_z: expected (T, {OBS_DIM}) observations, got {seq.shape}")
+        return np.zeros((len(seq), 0), np.float32)
+
+
+def _check_obs(obs: np.ndarray, who: str) -> np.ndarray:
+    arr = np.asarray(obs)
+    if arr.shape[-1] != OBS_DIM:
+        raise ValueError(f"{who}: expected observations with last dimension {OBS_DIM}, got {arr.shape}")
+    return arr
+
+
+class RandomAgent(_Floor):
+    """Uniform random actions in [-1, 1]^69 (seeded)."""
+
+    name = "random"
+
+    def __init__(self, seed: int = 0) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> np.ndarray:
+        n = _check_obs(obs, "act").reshape(-1, OBS_DIM).shape[0]
+        return self.rng.uniform(-1.0, 1.0, (n, NU)).astype(np.float32)
+
+
+class ZeroAgent(_Floor):
+    """Action 0: every PD target at the middle of its joint range."""
+
+    name = "zero"
+
+    def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> np.ndarray:
+        n = _check_obs(obs, "act").reshape(-1, OBS_DIM).shape[0]
+        return np.zeros((n, NU), np.float32)
+
+
+class BFMAgent:
+    """A loaded `fbcpr.BFM`: act with the policy, prompts through `fbcpr.prompt.Prompt`."""
+
+    name = "fbcpr"
+
+    def __init__(self, bfm: Any) -> None:
+        from fbcpr.prompt import Prompt
+
+        self.bfm = bfm
+        self.prompt = Prompt(bfm)
+        self.z_dim = int(bfm.z_dim if hasattr(bfm, "z_dim") else bfm.model.cfg.z_dim)
+
+    def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> np.ndarray:
+        return np.asarray(self.bfm.act(obs, z, mean=mean))
+
+    def reward_z(self, reward: str | Callable[..., np.ndarray]) -> np.ndarray:
+        return self.prompt.reward(reward)
+
+    def goal_z(self, goal_obs: np.ndarray) -> np.ndarray:
+        return self.prompt.goal(_check_obs(goal_obs, "goal_z"))
+
+    def track_z(self, obs_seq: np.ndarray) -> np.ndarray:
+        return self.prompt.track(np.asarray(obs_seq))
+
+
+def make_agent(spec: str, seed: int = 0) -> Agent:
+    """`random`, `zero`, or a checkpoint path / hub id loaded with `fbcpr.BFM.load`."""
+    if spec == "random":
+        return RandomAgent(seed)
+    if spec == "zero":
+        return ZeroAgent()
+    from fbcpr import BFM  # lazy: the floor baselines work without the model code
+
+    return BFMAgent(BFM.load(spec))

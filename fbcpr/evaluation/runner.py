@@ -1,0 +1,222 @@
+"""The benchmark runner: reward, goal and tracking episodes on the batched humanoid env (App. C.3).
+
+Reward and goal episodes last 300 steps from the test initial distribution, a mixture of Fall states and
+motion (MoCap) states; every task sees the same initial states. Tracking starts each clip's first state and
+runs its length. Episodes of one task run as one batch of envs; an env whose simulation diverges stops
+scoring (reward 0, goal distance infinite, tracking failed) for the rest of its episode.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from fbcpr.evaluation.agents import Agent
+from fbcpr.evaluation.metrics import d_smpl, emd, goal_proximity, goal_success, tracking_success
+from humanoid_env.observation import OBS_DIM
+
+SUITES = ("reward", "goal", "tracking")
+EPISODE_STEPS = 300
+TEST_FALL_PROB = 0.5  # the paper mixes Fall and MoCap test states without giving the ratio; we use half-half
+
+
+def _batch_z(z: np.ndarray, n: int) -> np.ndarray:
+    z = np.asarray(z, dtype=np.float32)
+    if z.ndim != 1:
+        raise ValueError(f"a prompt must return one z vector (d,), got shape {z.shape}")
+    return np.broadcast_to(z, (n, z.shape[0])).copy()
+
+
+class _Rollouts:
+    """One batched env reused for every task of a suite."""
+
+    def __init__(self, num_envs: int, steps: int, num_threads: int | None) -> None:
+        from humanoid_env.vector import VectorHumanoidEnv
+
+        self.env = VectorHumanoidEnv(num_envs, max_episode_steps=steps, num_threads=num_threads)
+        self.num_envs, self.steps = num_envs, steps
+
+    def run(self, agent: Agent, z_at: Callable[[int], np.ndarray], qpos: np.ndarray, qvel: np.ndarray,
+            on_step: Callable[[int, np.ndarray, np.ndarray], None], advance: Callable[[], None]) -> None:
+        """Roll out from (qpos, qvel); `on_step(t, next_obs, alive)` sees every next state."""
+        obs, _ = self.env.reset(options={"qpos": qpos, "qvel": qvel})
+        alive = np.ones(self.num_envs, bool)
+        for t in range(self.steps):
+            action = np.asarray(agent.act(obs, z_at(t), mean=True), dtype=np.float32)
+            obs, _, _, _, info = self.env.step(action)
+            alive &= ~info["diverged"]
+            on_step(t, info["final_obs"], alive)
+            advance()
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def _initial_states(episodes: int, fall_prob: float, motions: Any, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    from humanoid_env.inits import make_init
+
+    return make_init(fall_prob, motions).sample(np.random.default_rng(seed), episodes)
+
+
+def reward_suite(agent: Agent, tasks: Sequence[str], episodes: int, init: tuple[np.ndarray, np.ndarray],
+                 progress: Progress, steps: int = EPISODE_STEPS, num_threads: int | None = None) -> dict[str, Any]:
+    """Mean and std of the undiscounted return of each reward task."""
+    from humanoid_env.tasks import get_reward, task_category
+
+    fns = [get_reward(t) for t in tasks]  # fail on a bad name before any simulation
+    bar = progress.add_task("reward", total=len(tasks) * steps)
+    roll = _Rollouts(episodes, steps, num_threads)
+    out: dict[str, Any] = {}
+    try:
+        for task, fn in zip(tasks, fns):
+            z = _batch_z(agent.reward_z(task), episodes)
+            ret = np.zeros(episodes)
+
+            def score(t: int, nxt: np.ndarray, alive: np.ndarray) -> None:
+                ret[:] += np.where(alive, fn(nxt), 0.0)
+
+            roll.run(agent, lambda t: z, *init, score, lambda: progress.advance(bar))
+            out[task] = {"category": task_category(task), "return_mean": float(ret.mean()),
+                         "return_std": float(ret.std()), "returns": ret.tolist()}
+    finally:
+        roll.close()
+    return out
+
+
+def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np.ndarray, np.ndarray],
+               progress: Progress, steps: int = EPISODE_STEPS, num_threads: int | None = None) -> dict[str, Any]:
+    """Success rate and proximity of each named goal pose."""
+    from humanoid_env.tasks import goal_obs
+
+    targets = [goal_obs(g) for g in goals]
+    bar = progress.add_task("goal", total=len(goals) * steps)
+    roll = _Rollouts(episodes, steps, num_threads)
+    out: dict[str, Any] = {}
+    try:
+        for name, goal in zip(goals, targets):
+            z = _batch_z(agent.goal_z(goal), episodes)
+            dist = np.empty((episodes, steps))
+
+            def measure(t: int, nxt: np.ndarray, alive: np.ndarray) -> None:
+                dist[:, t] = np.where(alive, d_smpl(nxt, goal), np.inf)
+
+            roll.run(agent, lambda t: z, *init, measure, lambda: progress.advance(bar))
+            finite = np.where(np.isfinite(dist), dist, np.nan)
+            out[name] = {"success": float(goal_success(dist).mean()), "proximity": float(goal_proximity(dist).mean()),
+                         "min_distance": float(np.nanmin(finite)) if np.isfinite(dist).any() else float("inf")}
+    finally:
+        roll.close()
+    return out
+
+
+def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch: int = 32,
+                   num_threads: int | None = None) -> dict[str, Any]:
+    """Tracking success (d_smpl <= 0.5 at every step) and EMD for each clip, from its first state."""
+    out: dict[str, Any] = {}
+    bar = progress.add_task("tracking", total=sum(c.n_frames - 1 for c in clips))
+    for start in range(0, len(clips), batch):
+        group = list(clips[start:start + batch])
+        steps = max(c.n_frames for c in group) - 1
+        zs = [np.asarray(agent.track_z(c.obs), dtype=np.float32) for c in group]
+        for c, z in zip(group, zs):
+            if z.ndim != 2 or len(z) < 1:
+                raise ValueError(f"track_z for clip {c.name!r} must return (T, d) latents, got shape {z.shape}")
+        traj = np.empty((len(group), steps + 1, OBS_DIM), np.float32)
+        traj[:, 0] = [c.obs[0] for c in group]
+        dead = np.zeros(len(group), bool)
+        lengths = np.array([c.n_frames - 1 for c in group])
+
+        def z_at(t: int) -> np.ndarray:
+            return np.stack([z[min(t, len(z) - 1)] for z in zs])
+
+        def record(t: int, nxt: np.ndarray, alive: np.ndarray) -> None:
+            traj[:, t + 1] = nxt
+            dead[:] |= ~alive & (t < lengths)
+
+        roll = _Rollouts(len(group), steps, num_threads)
+        try:
+            qpos = np.stack([c.qpos[0] for c in group])
+            qvel = np.stack([c.qvel[0] for c in group])
+            roll.run(agent, z_at, qpos, qvel, record, lambda: None)
+        finally:
+            roll.close()
+        for i, c in enumerate(group):
+            agent_traj = traj[i, :c.n_frames]
+            out[c.name] = {"success": float(tracking_success(agent_traj, c.obs) and not dead[i]),
+                           "emd": emd(agent_traj, c.obs), "frames": c.n_frames}
+            progress.advance(bar, c.n_frames - 1)
+    return out
+
+
+def _split_names(names: Iterable[str], motions: Any) -> dict[str, list[str]]:
+    """Sort user-given names into the suite they belong to: goal poses, clip names, else reward tasks."""
+    from humanoid_env.tasks import GOALS, get_reward
+
+    clips = set(motions.names) if motions is not None else set()
+    groups: dict[str, list[str]] = {s: [] for s in SUITES}
+    for n in names:
+        if n in GOALS:
+            groups["goal"].append(n)
+        elif n in clips:
+            groups["tracking"].append(n)
+        else:
+            get_reward(n)  # raises a ValueError listing the families for a bad name
+            groups["reward"].append(n)
+    return groups
+
+
+def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = None, episodes: int = 10,
+             motions: Any = None, out: str | Path | None = None, steps: int = EPISODE_STEPS,
+             fall_prob: float = TEST_FALL_PROB, seed: int = 0, num_threads: int | None = None,
+             show_progress: bool = True, agent_name: str | None = None) -> dict[str, Any]:
+    """Run one suite ("reward", "goal", "tracking") or "all" and return the results dict.
+
+    `tasks` restricts each suite to the given names (reward task names, goal pose names, clip names);
+    `motions` is a MotionLibrary: its states join the test initial distribution and its clips are tracked.
+    With `out`, writes results.json and plots there.
+    """
+    from humanoid_env.tasks import GOALS, TASKS
+
+    if suite not in (*SUITES, "all"):
+        raise ValueError(f"unknown suite {suite!r}: choose one of {', '.join(SUITES)} or all")
+    if episodes < 1 or steps < 1:
+        raise ValueError(f"episodes and steps must be >= 1, got {episodes} and {steps}")
+    wanted = SUITES if suite == "all" else (suite,)
+    if "tracking" in wanted and motions is None:
+        raise ValueError("the tracking suite needs motions (a MotionLibrary)")
+    chosen = _split_names(tasks, motions) if tasks else {"reward": list(TASKS), "goal": list(GOALS),
+                                                          "tracking": list(motions.names) if motions is not None else []}
+    results: dict[str, Any] = {"agent": agent_name or getattr(agent, "name", type(agent).__name__),
+                               "episodes": episodes, "steps": steps, "fall_prob": fall_prob, "seed": seed}
+    init = _initial_states(episodes, fall_prob, motions, seed) if {"reward", "goal"} & set(wanted) else None
+    columns = (TextColumn("{task.description:>8}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, disable=not show_progress, transient=False) as progress:
+        if "reward" in wanted and chosen["reward"]:
+            results["reward"] = reward_suite(agent, chosen["reward"], episodes, init, progress, steps, num_threads)
+        if "goal" in wanted and chosen["goal"]:
+            results["goal"] = goal_suite(agent, chosen["goal"], episodes, init, progress, steps, num_threads)
+        if "tracking" in wanted and chosen["tracking"]:
+            by_name = {c.name: c for c in motions.clips}
+            results["tracking"] = tracking_suite(agent, [by_name[n] for n in chosen["tracking"]], progress,
+                                                 num_threads=num_threads)
+    from fbcpr.evaluation.report import summarize
+
+    results["summary"] = summarize(results)
+    if out is not None:
+        write_results(results, Path(out))
+    return results
+
+
+def write_results(results: dict[str, Any], out: Path) -> list[Path]:
+    """results.json plus bar-chart PNGs; returns the written paths."""
+    from fbcpr.evaluation.report import json_safe, plot_results
+
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "results.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(json_safe(results), indent=2, allow_nan=False))
+    tmp.replace(path)
+    return [path, *plot_results(results, out)]
