@@ -1,0 +1,312 @@
+"""`BFM`: a trained FB-CPR model ready to prompt and act, loaded from a checkpoint directory or the Hugging Face Hub.
+
+    bfm = BFM.load("runs/quickstart/final")            # or BFM.load("org/fbcpr-humanoid")
+    z = bfm.prompt.reward("move-ego-0-2")               # also .goal("t_pose"), .track(clip), .imitate(clip)
+    action = bfm.act(obs, z)                            # numpy or torch, (358,) or (N, 358)
+
+BFM also is an evaluation Agent (`act`, `z_dim`, `reward_z`, `goal_z`, `track_z`).
+"""
+from __future__ import annotations
+
+import re
+import tempfile
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import torch
+import yaml
+
+from fbcpr.checkpoint import (
+    CONFIG_FILE,
+    MANIFEST_FILE,
+    MODEL_FILE,
+    REWARD_FILE,
+    CheckpointError,
+    load_checkpoint,
+    save_checkpoint,
+)
+from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict
+from fbcpr.model import FBCPRModel
+from fbcpr.prompt import Prompt
+
+ArrayLike = TypeVar("ArrayLike", torch.Tensor, np.ndarray)
+
+#: Files an inference checkpoint needs (the trainer state and the full replay buffer are never fetched).
+HUB_FILES = [MODEL_FILE, CONFIG_FILE, MANIFEST_FILE, REWARD_FILE, "README.md"]
+_REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[\w.-]+$")
+_CHUNK = 16_384
+
+
+class BFM:
+    """Inference wrapper around an `FBCPRModel`: act, embed states with B, prompt, save and share."""
+
+    def __init__(
+        self,
+        model: FBCPRModel,
+        config: Config | ModelConfig,
+        reward_buffer: dict[str, np.ndarray] | None = None,
+        metrics: dict[str, float] | None = None,
+        source: str | None = None,
+        checkpoint: Any = None,
+    ) -> None:
+        self.model = model.eval()
+        self.config = config
+        self.metrics: dict[str, float] = dict(metrics or {})
+        self.source = source
+        self._reward_buffer = reward_buffer
+        self._checkpoint = checkpoint  # lazy access to reward_buffer.safetensors
+        self._prompt: Prompt | None = None
+
+    # ------------------------------------------------------------------------------------ loading
+    @classmethod
+    def load(
+        cls,
+        path_or_repo_id: str | Path,
+        device: str | torch.device = "cpu",
+        revision: str | None = None,
+        cache_dir: str | Path | None = None,
+    ) -> "BFM":
+        """Load from a checkpoint directory, or from a Hub repo id (respects HF_HUB_OFFLINE and the local cache)."""
+        path = resolve_checkpoint(path_or_repo_id, revision=revision, cache_dir=cache_dir)
+        ckpt = load_checkpoint(path, device=device)
+        return cls(ckpt.model, ckpt.config, source=str(path_or_repo_id), checkpoint=ckpt)
+
+    # ---------------------------------------------------------------------------------- properties
+    @property
+    def device(self) -> torch.device:
+        return self.model.device
+
+    @property
+    def obs_dim(self) -> int:
+        return int(self.model.cfg.obs_dim)
+
+    @property
+    def action_dim(self) -> int:
+        return int(self.model.cfg.action_dim)
+
+    @property
+    def z_dim(self) -> int:
+        return int(self.model.cfg.z_dim)
+
+    @property
+    def sequence_length(self) -> int:
+        """L of ER_FB, the training sequence length (the paper's 8 when the checkpoint has no agent config)."""
+        agent = self.config.agent if isinstance(self.config, Config) else AgentConfig()
+        return int(agent.seq_length)
+
+    @property
+    def reward_buffer(self) -> dict[str, np.ndarray] | None:
+        """The reward-inference buffer (next_obs, qpos, qvel), read from the checkpoint on first use."""
+        if self._reward_buffer is None and self._checkpoint is not None:
+            self._reward_buffer = self._checkpoint.reward_buffer()
+            self._checkpoint = None
+        return self._reward_buffer
+
+    @property
+    def prompt(self) -> Prompt:
+        """The prompt layer for this model (its reward-buffer embeddings are cached across reward prompts)."""
+        if self._prompt is None:
+            self._prompt = Prompt(self)
+        return self._prompt
+
+    # --------------------------------------------------------------------------------- inference
+    def act(self, obs: ArrayLike, z: ArrayLike, mean: bool = True, generator: torch.Generator | None = None) -> ArrayLike:
+        """Actions in [-1, 1] for obs (obs_dim,) or (N, obs_dim) and z (z_dim,) or (N, z_dim).
+
+        Returns the kind of `obs` (numpy or torch) with its batch convention; a single z is shared by a batch.
+        """
+        as_torch = isinstance(obs, torch.Tensor)
+        o, zt = self._tensor(obs, "obs"), self._tensor(z, "z")
+        obs_shape, z_shape = tuple(o.shape), tuple(zt.shape)
+        single = o.dim() == 1
+        o = o.unsqueeze(0) if single else o
+        if o.dim() != 2 or o.shape[1] != self.obs_dim:
+            raise ValueError(f"obs: expected shape ({self.obs_dim},) or (N, {self.obs_dim}), got {obs_shape}")
+        zt = zt.unsqueeze(0).expand(o.shape[0], -1) if zt.dim() == 1 else zt
+        if zt.dim() != 2 or zt.shape[1] != self.z_dim or zt.shape[0] != o.shape[0]:
+            raise ValueError(f"z: expected shape ({self.z_dim},) or ({o.shape[0]}, {self.z_dim}), got {z_shape}")
+        if not (torch.isfinite(o).all() and torch.isfinite(zt).all()):
+            raise ValueError("obs and z must be finite (found NaN or inf)")
+        with torch.inference_mode():
+            a = self.model.act(o, zt, mean=mean, generator=generator)
+        a = a[0] if single else a
+        return a if as_torch else a.cpu().numpy()
+
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: bool = False) -> np.ndarray | torch.Tensor:
+        """B(s) for observations (obs_dim,) or (N, obs_dim) -> (N, z_dim), in chunks, under inference mode."""
+        o = self._tensor(obs, "obs")
+        o = o.unsqueeze(0) if o.dim() == 1 else o
+        if o.dim() != 2 or o.shape[1] != self.obs_dim:
+            raise ValueError(f"obs: expected shape ({self.obs_dim},) or (N, {self.obs_dim}), got {tuple(o.shape)}")
+        if not torch.isfinite(o).all():
+            raise ValueError("obs must be finite (found NaN or inf)")
+        with torch.inference_mode():
+            b = torch.cat([self.model.backward(chunk) for chunk in o.split(_CHUNK)]) if o.shape[0] else o.new_zeros(0, self.z_dim)
+        return b if as_tensor else b.cpu().numpy()
+
+    def project_z(self, z: np.ndarray | torch.Tensor) -> np.ndarray:
+        """float32 numpy z on the sqrt(d) sphere (the model's projection)."""
+        with torch.inference_mode():
+            out = self.model.project_z(torch.as_tensor(z, dtype=torch.float32))
+        return out.cpu().numpy().astype(np.float32)
+
+    def _tensor(self, x: Any, name: str) -> torch.Tensor:
+        if isinstance(x, torch.Tensor):
+            return x.to(device=self.device, dtype=torch.float32)
+        try:
+            return torch.as_tensor(np.asarray(x, dtype=np.float32), device=self.device)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{name}: expected a numpy array or torch tensor of numbers ({err})") from None
+
+    # ------------------------------------------------------------------------- agent protocol
+    def reward_z(self, task: Any, **kwargs: Any) -> np.ndarray:
+        """z for a reward task name (or callable); see `Prompt.reward`."""
+        return self.prompt.reward(task, **kwargs)
+
+    def goal_z(self, goal: Any) -> np.ndarray:
+        """z for a goal observation, qpos pose or goal name; see `Prompt.goal`."""
+        return self.prompt.goal(goal)
+
+    def track_z(self, obs_seq: Any) -> np.ndarray:
+        """(T-1, z_dim) per-step zs to track a motion; see `Prompt.track`."""
+        return self.prompt.track(obs_seq)
+
+    def imitate_z(self, motion: Any) -> np.ndarray:
+        """One z for a whole motion; see `Prompt.imitate`."""
+        return self.prompt.imitate(motion)
+
+    # ---------------------------------------------------------------------------------- saving
+    def save(self, path: str | Path) -> Path:
+        """Write an inference checkpoint (model, config, reward-inference buffer) atomically at `path`."""
+        return save_checkpoint(path, self.model, self.config, reward_buffer=self.reward_buffer)
+
+    def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None, repo_id: str | None = None) -> Path:
+        """The folder `push_to_hub` uploads: an inference checkpoint plus a README.md model card."""
+        path = self.save(path)
+        card = model_card(self, {**self.metrics, **(metrics or {})}, repo_id or "<owner>/<name>")
+        (path / "README.md").write_text(card)
+        return path
+
+    def push_to_hub(
+        self,
+        repo_id: str,
+        metrics: dict[str, float] | None = None,
+        private: bool | None = None,
+        token: str | None = None,
+        commit_message: str = "Upload FB-CPR model",
+    ) -> Any:
+        """Create the repo if needed and upload the `save_for_hub` folder; returns the commit info."""
+        import huggingface_hub
+
+        if not _REPO_ID.match(repo_id):
+            raise ValueError(f"{repo_id!r} is not a Hugging Face repo id (expected 'owner/name')")
+        with tempfile.TemporaryDirectory(prefix="fbcpr-hub-") as tmp:
+            folder = self.save_for_hub(Path(tmp) / "model", metrics=metrics, repo_id=repo_id)
+            huggingface_hub.create_repo(repo_id, token=token, private=private, exist_ok=True)
+            return huggingface_hub.upload_folder(
+                repo_id=repo_id, folder_path=folder, token=token, commit_message=commit_message
+            )
+
+
+def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: str | Path | None = None) -> Path:
+    """A local checkpoint directory as is, or a Hub repo id downloaded into (or found in) the HF cache."""
+    path = Path(src).expanduser()
+    if path.exists():
+        if not path.is_dir():
+            raise CheckpointError(f"{path}: not a checkpoint directory (expected a folder with {MODEL_FILE})")
+        return path
+    text = str(src)
+    if not _REPO_ID.match(text) or text.startswith((".", "/", "~")):
+        raise CheckpointError(f"{text}: no such checkpoint directory")
+    folder = Path(_download(text, revision, cache_dir))
+    missing = [f for f in (MODEL_FILE, CONFIG_FILE, MANIFEST_FILE) if not (folder / f).is_file()]
+    if missing:
+        raise CheckpointError(f"Hugging Face repo {text!r} has no {missing[0]}: it is not an fbcpr checkpoint "
+                              f"(or its download is incomplete)")
+    return folder
+
+
+def _download(repo_id: str, revision: str | None, cache_dir: str | Path | None) -> str:
+    """snapshot_download with errors that say what to do; honours HF_HUB_OFFLINE=1 (cache only)."""
+    from huggingface_hub import snapshot_download
+    from huggingface_hub.errors import (
+        HfHubHTTPError,
+        IncompleteSnapshotError,
+        LocalEntryNotFoundError,
+        RepositoryNotFoundError,
+        RevisionNotFoundError,
+    )
+
+    try:
+        return snapshot_download(repo_id, revision=revision, cache_dir=cache_dir, allow_patterns=HUB_FILES)
+    except RepositoryNotFoundError:
+        raise CheckpointError(f"{repo_id}: neither a local checkpoint directory nor a Hugging Face repo "
+                              "(check the name; private repos need `hf auth login`)") from None
+    except RevisionNotFoundError:
+        raise CheckpointError(f"{repo_id}: revision {revision!r} not found on the Hugging Face Hub") from None
+    except (LocalEntryNotFoundError, IncompleteSnapshotError):
+        raise CheckpointError(f"{repo_id}: no such local directory, and the Hugging Face repo is not in the local "
+                              "cache (offline: HF_HUB_OFFLINE=1 or no network). Download it once while online.") from None
+    except HfHubHTTPError as err:
+        raise CheckpointError(f"{repo_id}: Hugging Face Hub error ({err})") from None
+
+
+def model_card(bfm: BFM, metrics: dict[str, float], repo_id: str) -> str:
+    """README.md for the Hub: metadata header, what the model is, how to use it, its config and metrics."""
+    from huggingface_hub import ModelCardData
+
+    data = ModelCardData(
+        library_name="fbcpr",
+        tags=["reinforcement-learning", "behavioral-foundation-model", "fb-cpr", "mujoco", "humanoid"],
+        pipeline_tag="reinforcement-learning",
+    )
+    cfg = config_to_dict(bfm.config) if isinstance(bfm.config, Config) else {"model": config_to_dict(bfm.config)}
+    motions = cfg.get("env", {}).get("motions", "unknown")
+    steps = cfg.get("train", {}).get("total_env_steps")
+    if metrics:
+        rows = "\n".join(f"| {k} | {v:.4g} |" if isinstance(v, (int, float)) else f"| {k} | {v} |"
+                         for k, v in sorted(metrics.items()))
+        table = f"| metric | value |\n|---|---|\n{rows}"
+    else:
+        table = "No evaluation metrics were recorded for this checkpoint (run `fbcpr eval` and push again)."
+    has_buffer = bfm.reward_buffer is not None
+    return f"""---
+{data.to_yaml()}
+---
+
+# FB-CPR behavioral foundation model (SMPL humanoid)
+
+A forward-backward model with conditional policy regularization (FB-CPR) for the MuJoCo SMPL humanoid of the
+`fbcpr` package: one latent-conditioned policy that is prompted zero-shot with a reward, a goal pose or a motion.
+
+- observation: {bfm.obs_dim} values, action: {bfm.action_dim} PD targets in [-1, 1], latent z: {bfm.z_dim} dims
+- trained on motions: `{motions}`{f", {steps:,} environment steps (configured)" if steps else ""}
+- reward-inference buffer included: {"yes" if has_buffer else "no (reward prompts unavailable)"}
+
+Check the license of the motion data the model was trained on before using it.
+
+## Usage
+
+```python
+from fbcpr import BFM
+from humanoid_env.env import HumanoidEnv
+
+bfm = BFM.load("{repo_id}")
+z = bfm.prompt.reward("move-ego-0-2")    # or bfm.prompt.goal("t_pose"), bfm.prompt.track("clip.npz")
+env = HumanoidEnv()
+obs, info = env.reset(seed=0)
+for _ in range(300):
+    obs, reward, terminated, truncated, info = env.step(bfm.act(obs, z))
+```
+
+## Metrics
+
+{table}
+
+## Config
+
+```yaml
+{yaml.safe_dump(cfg, sort_keys=False).rstrip()}
+```
+"""

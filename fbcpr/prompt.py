@@ -1,0 +1,214 @@
+"""Prompts: turn a reward, a goal pose or a motion into a latent z for a trained `BFM` (paper App. C.5.3).
+
+Every z is returned as a float32 numpy vector (or one row per step for tracking), projected onto the
+sqrt(d) sphere that the policy was trained on:
+
+- reward: weighted regression z ∝ Σ exp(τ r(s')) r(s') B(s') over the checkpoint's reward-inference buffer
+  (τ = 10, up to 100k samples), or the plain FB regression z ∝ Σ r(s') B(s');
+- goal: z = B(g), with zero velocities when the goal is a pose;
+- track: z_t ∝ Σ_{j=t+1}^{t+L} B(s_j), the ER_FB encoding of the next L states (L = training sequence length),
+  the window shrinking at the end of the clip;
+- imitate: ER_FB of the whole clip (mean of B over its states);
+- mix: a weighted sum of zs, projected again.
+Rewards compose before inference through the reward registry's `a*b` / `a+b` names.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, Union
+
+import numpy as np
+import torch
+
+if TYPE_CHECKING:
+    from fbcpr.bfm import BFM
+    from motions.clip import Clip
+
+#: A reward given by registry name (e.g. "jump-2", "move-ego-0-2*crouch-0") or as a RewardFn-like callable.
+RewardSpec = Union[str, Callable[..., np.ndarray]]
+#: A goal given by name, as a qpos (76,) pose, or as an observation (358,).
+GoalSpec = Union[str, np.ndarray, torch.Tensor, Sequence[float]]
+#: A motion given as a Clip, a path to a clip file, or an (T, 358) observation sequence.
+MotionSpec = Union["Clip", str, Path, np.ndarray, torch.Tensor]
+
+TEMPERATURE = 10.0
+N_REWARD_SAMPLES = 100_000
+
+
+class PromptError(ValueError):
+    """A prompt that cannot be turned into a z (unknown task, wrong shape, empty buffer, ...)."""
+
+
+class Prompt:
+    """Latent-z inference for one model; caches B over the reward-inference buffer between reward prompts."""
+
+    def __init__(self, bfm: "BFM") -> None:
+        self.bfm = bfm
+        self._buffer_cache: dict[tuple[int, int], tuple[dict[str, np.ndarray], torch.Tensor]] = {}
+
+    # ----------------------------------------------------------------------------------------- rewards
+    def reward(
+        self,
+        task: RewardSpec,
+        method: Literal["weighted", "regression"] = "weighted",
+        n: int = N_REWARD_SAMPLES,
+        temperature: float = TEMPERATURE,
+        seed: int = 0,
+    ) -> np.ndarray:
+        """z for a reward: relabel up to n buffer samples (next state) with the reward, then regress on B."""
+        if method not in ("weighted", "regression"):
+            raise PromptError(f"unknown reward inference method {method!r}: use 'weighted' or 'regression'")
+        fn, label = _reward_fn(task)
+        samples, b = self._buffer_sample(n, seed)
+        try:
+            r = fn(samples["next_obs"], None, samples["qpos"], samples["qvel"])
+        except Exception as err:  # reward code errors are reported with the reward's name
+            raise PromptError(f"reward {label!r} failed on the reward-inference buffer: {err}") from err
+        r = np.asarray(r, dtype=np.float64)
+        if r.shape != (b.shape[0],):
+            raise PromptError(f"reward {label!r} returned shape {r.shape}, expected ({b.shape[0]},)")
+        if not np.all(np.isfinite(r)):
+            raise PromptError(f"reward {label!r} returned non-finite values on the reward-inference buffer")
+        if method == "weighted":
+            weights = np.exp(temperature * (r - r.max())) * r  # the exp(τ·max r) factor cancels in the projection
+        else:
+            weights = r / r.shape[0]
+        if not np.any(weights != 0):
+            raise PromptError(
+                f"reward {label!r} is zero on all {r.shape[0]} buffer samples: the buffer holds no state it "
+                "rewards, so there is nothing to infer z from"
+            )
+        w = torch.as_tensor(weights, dtype=b.dtype, device=b.device)
+        return self._project(w @ b)
+
+    def _buffer_sample(self, n: int, seed: int) -> tuple[dict[str, np.ndarray], torch.Tensor]:
+        """Up to n samples of the reward-inference buffer (without replacement) and their B, cached."""
+        if n < 1:
+            raise PromptError(f"number of reward samples must be positive, got {n}")
+        key = (n, seed)
+        if key not in self._buffer_cache:
+            buf = self.bfm.reward_buffer
+            if buf is None:
+                raise PromptError(
+                    "this checkpoint ships no reward-inference buffer (reward_buffer.safetensors): "
+                    "reward prompts need one; goal, track and imitate prompts still work"
+                )
+            size = buf["next_obs"].shape[0]
+            if size <= n:
+                samples = buf
+            else:
+                idx = np.sort(np.random.default_rng(seed).choice(size, n, replace=False))
+                samples = {k: v[idx] for k, v in buf.items()}
+            self._buffer_cache = {key: (samples, self.bfm.backward(samples["next_obs"], as_tensor=True))}
+        return self._buffer_cache[key]
+
+    # ------------------------------------------------------------------------------------------- goals
+    def goal(self, target: GoalSpec) -> np.ndarray:
+        """z = B(g) for a goal name, a qpos pose (velocities set to zero) or an observation."""
+        return self._project(self.bfm.backward(goal_observation(target, self.bfm.obs_dim), as_tensor=True)[0])
+
+    # ---------------------------------------------------------------------------------------- motions
+    def track(self, motion: MotionSpec) -> np.ndarray:
+        """(T-1, d): one z per step t, the ER_FB of the next L states s_{t+1..t+L}, clipped at the clip end."""
+        obs = motion_observations(motion, self.bfm.obs_dim, min_length=2)
+        b = self.bfm.backward(obs[1:], as_tensor=True).double()
+        steps, seq_len = b.shape[0], self.bfm.sequence_length
+        csum = torch.cat([torch.zeros_like(b[:1]), b.cumsum(0)])
+        start = torch.arange(steps, device=b.device)
+        end = torch.clamp(start + seq_len, max=steps)
+        window = (csum[end] - csum[start]) / (end - start).unsqueeze(1)
+        return self._project(window)
+
+    def imitate(self, motion: MotionSpec) -> np.ndarray:
+        """One z for a whole motion: ER_FB, the mean of B over all its states."""
+        obs = motion_observations(motion, self.bfm.obs_dim, min_length=1)
+        return self._project(self.bfm.backward(obs, as_tensor=True).mean(0))
+
+    # ----------------------------------------------------------------------------------- composition
+    def mix(self, parts: Sequence[tuple[np.ndarray | torch.Tensor, float]]) -> np.ndarray:
+        """Weighted mixture Σ w_i z_i of prompts (e.g. 0.7 walk + 0.3 raise arms), projected to the sphere."""
+        if len(parts) == 0:
+            raise PromptError("mix needs at least one (z, weight) pair")
+        zs = [np.asarray(z.detach().cpu() if isinstance(z, torch.Tensor) else z, dtype=np.float64) for z, _ in parts]
+        for z in zs:
+            if z.shape != (self.bfm.z_dim,):
+                raise PromptError(f"mix: every z must have shape ({self.bfm.z_dim},), got {z.shape}")
+        total = sum(float(w) * z for z, (_, w) in zip(zs, parts))
+        return self._project(torch.as_tensor(total))
+
+    def _project(self, z: torch.Tensor) -> np.ndarray:
+        """Onto the sqrt(d) sphere; a zero or non-finite z is an error, never a silent NaN."""
+        z = z.double()
+        norm = torch.linalg.vector_norm(z, dim=-1)
+        if not torch.all(torch.isfinite(z)) or torch.any(norm == 0):
+            raise PromptError("the prompt produced a zero or non-finite z (degenerate input)")
+        return self.bfm.project_z(z.float())
+
+
+def _reward_fn(task: RewardSpec) -> tuple[Callable[..., np.ndarray], str]:
+    """The RewardFn for a registry name (combined names included) or a user callable, with a label for errors."""
+    if callable(task):
+        return task, getattr(task, "__name__", repr(task))
+    if not isinstance(task, str) or not task.strip():
+        raise PromptError(f"a reward is a task name or a callable, got {task!r}")
+    from humanoid_env.tasks import get_reward
+
+    try:
+        return get_reward(task.strip()), task.strip()
+    except (KeyError, ValueError) as err:
+        msg = err.args[0] if err.args else str(err)
+        raise PromptError(f"unknown reward task {task!r}: {msg}") from err
+
+
+def goal_observation(target: GoalSpec, obs_dim: int) -> np.ndarray:
+    """(1, obs_dim) observation of a goal given by name, by qpos (76,) with zero velocities, or as an observation."""
+    from humanoid_env.model import NQ, NV, load_model
+    from humanoid_env.observation import observe
+
+    if isinstance(target, str):
+        from humanoid_env.tasks.goals import goal_obs
+
+        try:
+            obs = goal_obs(target)
+        except (KeyError, ValueError) as err:
+            msg = err.args[0] if err.args else str(err)
+            raise PromptError(f"unknown goal {target!r}: {msg}") from err
+    else:
+        arr = np.asarray(target.detach().cpu() if isinstance(target, torch.Tensor) else target, dtype=np.float64)
+        if arr.shape == (NQ,):
+            obs = observe(load_model(), arr, np.zeros(NV))
+        elif arr.shape == (obs_dim,):
+            obs = arr
+        else:
+            raise PromptError(
+                f"a goal is a name, a qpos of shape ({NQ},) or an observation of shape ({obs_dim},); got shape {arr.shape}"
+            )
+    obs = np.asarray(obs, dtype=np.float32).reshape(1, -1)
+    if obs.shape[1] != obs_dim or not np.all(np.isfinite(obs)):
+        raise PromptError(f"goal observation must be {obs_dim} finite values, got shape {obs.shape[1:]}")
+    return obs
+
+
+def motion_observations(motion: MotionSpec, obs_dim: int, min_length: int) -> np.ndarray:
+    """(T, obs_dim) float32 observations of a Clip, a clip file or an array, checked for shape, length and NaN."""
+    if isinstance(motion, (str, Path)):
+        from motions.clip import ClipFormatError, load_clip
+
+        path = Path(motion)
+        if not path.is_file():
+            raise PromptError(f"motion clip not found: {path}")
+        try:
+            motion = load_clip(path)
+        except ClipFormatError as err:
+            raise PromptError(str(err)) from None
+    obs = getattr(motion, "obs", motion)
+    arr = np.asarray(obs.detach().cpu() if isinstance(obs, torch.Tensor) else obs, dtype=np.float32)
+    name = getattr(motion, "name", "motion")
+    if arr.ndim != 2 or arr.shape[1] != obs_dim:
+        raise PromptError(f"{name}: expected observations of shape (T, {obs_dim}), got {arr.shape}")
+    if arr.shape[0] < min_length:
+        raise PromptError(f"{name}: clip too short ({arr.shape[0]} frames, need at least {min_length})")
+    if not np.all(np.isfinite(arr)):
+        raise PromptError(f"{name}: observations contain NaN or inf")
+    return arr

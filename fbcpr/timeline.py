@@ -1,0 +1,121 @@
+"""Timeline prompts: several prompts played back to back, e.g. walk 4 s, then jump 2 s, then sit 4 s.
+
+The text form is "ITEM:SECONDS,ITEM:SECONDS,...", where ITEM is a clip file (tracked frame by frame), a goal
+name, or a reward task (combined rewards like "move-ego-0-2*raisearms-l-l" included). Each segment turns into
+one z per control step (30 Hz); the policy switches z at segment boundaries and the state carries over, which
+is how a BFM stitches motions without any extra training.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, Union
+
+import numpy as np
+
+from fbcpr.prompt import Prompt, PromptError
+
+Kind = Literal["reward", "goal", "clip", "z"]
+#: A timeline item: a text spec (clip path, goal name or reward task) or an explicit z vector.
+Item = Union[str, Path, np.ndarray]
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One prompt held for `steps` control steps; `z` is (steps, d)."""
+
+    label: str
+    kind: Kind
+    seconds: float
+    z: np.ndarray
+
+    @property
+    def steps(self) -> int:
+        return int(self.z.shape[0])
+
+
+def parse_timeline(text: str) -> list[tuple[str, float]]:
+    """Split "a:4,b:2.5" into [("a", 4.0), ("b", 2.5)]; clear errors for empty items and bad durations."""
+    items = [part.strip() for part in text.split(",")]
+    if not text.strip() or any(not part for part in items):
+        raise PromptError(f"timeline {text!r}: expected comma-separated ITEM:SECONDS entries, found an empty entry")
+    out = []
+    for part in items:
+        spec, sep, secs = part.rpartition(":")
+        if not sep or not spec.strip():
+            raise PromptError(f"timeline entry {part!r}: expected ITEM:SECONDS, e.g. jump-2:2")
+        try:
+            seconds = float(secs)
+        except ValueError:
+            raise PromptError(f"timeline entry {part!r}: duration {secs!r} is not a number of seconds") from None
+        if not np.isfinite(seconds) or seconds <= 0:
+            raise PromptError(f"timeline entry {part!r}: duration must be a positive number of seconds")
+        out.append((spec.strip(), seconds))
+    return out
+
+
+def classify(spec: str) -> Kind:
+    """A clip if the spec names a clip file, a goal if it is a known goal name, else a reward task."""
+    from humanoid_env.tasks.goals import goal_names
+
+    if spec.endswith(".npz") or Path(spec).is_file():
+        return "clip"
+    if spec in goal_names():
+        return "goal"
+    return "reward"
+
+
+class Timeline:
+    """Segments of per-step zs; iterate it to get one z per control step."""
+
+    def __init__(self, segments: Sequence[Segment]) -> None:
+        if not segments:
+            raise PromptError("a timeline needs at least one segment")
+        self.segments = list(segments)
+
+    @classmethod
+    def build(cls, prompt: Prompt, items: Sequence[tuple[Item, float]], fps: float = 30.0) -> "Timeline":
+        """Infer the z of every (item, seconds) pair; reward and goal zs are held, clips are tracked."""
+        segments = []
+        for item, seconds in items:
+            steps = max(1, int(round(seconds * fps)))
+            if isinstance(item, np.ndarray):
+                if item.shape != (prompt.bfm.z_dim,):
+                    raise PromptError(f"timeline z must have shape ({prompt.bfm.z_dim},), got {item.shape}")
+                kind, label, z = "z", "z", prompt.mix([(item, 1.0)])
+            else:
+                label = str(item)
+                kind = classify(label)
+                if kind == "clip":
+                    z = prompt.track(Path(label))
+                elif kind == "goal":
+                    z = prompt.goal(label)
+                else:
+                    z = prompt.reward(label)
+            z = np.atleast_2d(z)
+            # Held prompts repeat one z; a tracked clip plays its per-step zs and holds the last one if time remains.
+            rows = np.minimum(np.arange(steps), z.shape[0] - 1)
+            segments.append(Segment(label=label, kind=kind, seconds=float(seconds), z=z[rows]))
+        return cls(segments)
+
+    @classmethod
+    def from_string(cls, prompt: Prompt, text: str, fps: float = 30.0) -> "Timeline":
+        """Parse "move-ego-0-2:4,jump-2:2,sitonground:4" and infer every segment's zs."""
+        return cls.build(prompt, parse_timeline(text), fps=fps)
+
+    @property
+    def n_steps(self) -> int:
+        return sum(s.steps for s in self.segments)
+
+    def z_per_step(self) -> np.ndarray:
+        """(n_steps, d): the z to use at every control step."""
+        return np.concatenate([s.z for s in self.segments])
+
+    def segment_index(self) -> np.ndarray:
+        """(n_steps,): which segment each step belongs to (for labels in videos and per-segment returns)."""
+        return np.repeat(np.arange(len(self.segments)), [s.steps for s in self.segments])
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for seg in self.segments:
+            yield from seg.z
