@@ -151,10 +151,13 @@ class Rotate(_Reward):
 
 @dataclass(frozen=True)
 class RaiseArms(_Reward):
-    """Stand still with each wrist in a height band: l (hanging), m (shoulder height), h (above the head)."""
+    """Stand with each wrist in a height band: l (hanging), m (shoulder height), h (above the head). Moving the
+    body around halves the reward (a penalty for needless movement, not a gate), unless `calm` is off, as in
+    the locomotion + arms composites of Table 25."""
 
     left: str
     right: str
+    calm: bool = True
 
     @property
     def name(self) -> str:
@@ -165,12 +168,14 @@ class RaiseArms(_Reward):
         for side, level in (("L", self.left), ("R", self.right)):
             lo, hi, margin = ARM_BANDS[level]
             arms = arms * _tol(f.z(f"{side}_Wrist"), lo, hi, margin, "gaussian", 0.1)
-        return _standing(f) * _upright(f) * _still(f) * arms
+        calm = (1.0 + _still(f)) / 2 if self.calm else 1.0
+        return _standing(f) * _upright(f) * arms * calm
 
 
 @dataclass(frozen=True)
 class Crouch(_Reward):
-    """Pelvis low (between `min_height` and 0.6 m), feet on the floor, knees off it, torso upright, still."""
+    """Squat: pelvis low (between `min_height` and 0.6 m) and above the feet, feet on the floor, knees off it,
+    torso upright, still."""
 
     min_height: float
 
@@ -181,8 +186,10 @@ class Crouch(_Reward):
     def compute(self, f: Features) -> np.ndarray:
         low = _tol(f.z("Pelvis"), self.min_height, 0.6, 0.4)
         feet = _tol(np.maximum(f.z("L_Ankle"), f.z("R_Ankle")), 0.0, 0.15, 0.3)
-        knees_up = _tol(np.minimum(f.z("L_Knee"), f.z("R_Knee")), 0.15, np.inf, 0.1)
-        return low * feet * knees_up * _upright(f, lo=0.8, margin=0.8) * _still(f)
+        ankles_xy = (f.rel("L_Ankle")[:, :2] + f.rel("R_Ankle")[:, :2]) / 2
+        over_feet = _tol(np.linalg.norm(ankles_xy, axis=1), 0.0, 0.3, 0.3)
+        knees_up = _tol(np.minimum(f.z("L_Knee"), f.z("R_Knee")), 0.25, np.inf, 0.15)
+        return low * feet * over_feet * knees_up * _upright(f, lo=0.8, margin=0.8) * _still(f)
 
 
 @dataclass(frozen=True)
@@ -233,7 +240,8 @@ class Split(_Reward):
 
 @dataclass(frozen=True)
 class Crawl(_Reward):
-    """Spine at `height` m (+-0.1), belly facing the floor (`d`) or the sky (`u`), moving head-first at `speed`."""
+    """Spine at `height` m (+-0.1), trunk near horizontal with the belly facing the floor (`d`) or the sky (`u`),
+    moving head-first at `speed`."""
 
     height: float
     speed: float
@@ -246,9 +254,10 @@ class Crawl(_Reward):
     def compute(self, f: Features) -> np.ndarray:
         level = _tol(f.z("Spine"), self.height - 0.1, self.height + 0.1, 0.3)
         sign = -1.0 if self.facing == "d" else 1.0
-        face = _tol(sign * f.axis_x("Chest")[:, 2], 0.7, np.inf, 0.7)
+        face = _tol(sign * f.axis_x("Chest")[:, 2], 0.7, np.inf, 0.5)
+        flat = _tol(np.abs(f.axis_z("Chest")[:, 2]), 0.0, 0.5, 0.5)
         head_first = _unit_xy(f.axis_z("Chest"))
-        return level * face * _move(f, head_first, self.speed)
+        return level * face * flat * _move(f, head_first, self.speed)
 
 
 @dataclass(frozen=True)
@@ -310,7 +319,8 @@ class Mean(_Reward):
 
 @dataclass(frozen=True)
 class MoveAndRaiseArms(Product):
-    """Table 25's composite tasks, `move-ego-{angle}-{speed}-raisearms-{l}-{r}`: locomotion times arm raising."""
+    """Table 25's composite tasks, `move-ego-{angle}-{speed}-raisearms-{l}-{r}`: locomotion times arm raising
+    (without the arms' movement penalty, since the task is to move)."""
 
     @property
     def name(self) -> str:
@@ -328,7 +338,7 @@ _SNUM = rf"-?{_NUM}"
 FAMILIES: dict[str, tuple[re.Pattern[str], Callable[..., _Reward]]] = {
     "move-ego-{angle}-{speed}-raisearms-{l|m|h}-{l|m|h}": (
         re.compile(rf"move-ego-({_SNUM})-({_NUM})-raisearms-([lmh])-([lmh])"),
-        lambda a, s, left, right: MoveAndRaiseArms((Move(float(a), float(s)), RaiseArms(left, right))),
+        lambda a, s, left, right: MoveAndRaiseArms((Move(float(a), float(s)), RaiseArms(left, right, calm=False))),
     ),
     "move-ego-{angle}-{speed}": (re.compile(rf"move-ego-({_SNUM})-({_NUM})"), lambda a, s: Move(float(a), float(s))),
     "move-ego-low-{angle}-{speed}": (

@@ -1,0 +1,129 @@
+"""The benchmark runner end to end on tiny budgets: floor baselines, oracle agents, outputs and the CLI."""
+import json
+
+import numpy as np
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from fbcpr.evaluation.agents import Agent, RandomAgent, ZeroAgent, make_agent
+from fbcpr.evaluation.runner import evaluate
+from humanoid_env.env import pd_targets
+from humanoid_env.model import load_model
+from humanoid_env.tasks import goal_obs, goal_qpos
+from motions.library import MotionLibrary
+from motions.synthetic import stand, tpose
+
+MID, HALF = pd_targets(load_model())
+
+
+def to_action(qpos: np.ndarray) -> np.ndarray:
+    return ((qpos[..., 7:] - MID) / HALF).astype(np.float32)
+
+
+class PoseOracle:
+    """Its z is the PD target of a known pose: act() plays z back. Goal and tracking prompts that reach the
+    runner intact must therefore make it succeed, while the floor baselines fail."""
+
+    name = "oracle"
+    z_dim = 69
+
+    def __init__(self, clips=()):
+        self.clips = {c.obs.tobytes(): c for c in clips}
+
+    def act(self, obs, z, mean=True):
+        return np.asarray(z, np.float32)
+
+    def reward_z(self, reward):
+        return to_action(goal_qpos("a_pose"))
+
+    def goal_z(self, goal):
+        match = [n for n in ("a_pose", "t_pose", "arms_stretch") if np.allclose(goal_obs(n), goal)]
+        return to_action(goal_qpos(match[0]))
+
+    def track_z(self, obs_seq):
+        return to_action(self.clips[np.asarray(obs_seq).tobytes()].qpos[1:])
+
+
+@pytest.fixture(scope="module")
+def library():
+    return MotionLibrary([stand(seconds=1.0), tpose(seconds=1.0)])
+
+
+def test_agents_follow_the_protocol():
+    for agent in (RandomAgent(0), ZeroAgent(), PoseOracle()):
+        assert isinstance(agent, Agent)
+    obs = np.zeros((3, 358), np.float32)
+    a = RandomAgent(0).act(obs, np.zeros((3, 0)))
+    assert a.shape == (3, 69) and np.all(np.abs(a) <= 1) and a.std() > 0.3
+    assert np.all(ZeroAgent().act(obs, np.zeros((3, 0))) == 0)
+    assert ZeroAgent().track_z(np.zeros((7, 358))).shape == (7, 0)
+    with pytest.raises(ValueError, match="358"):
+        ZeroAgent().goal_z(np.zeros(10))
+
+
+def test_random_agent_end_to_end_with_outputs(tmp_path, library):
+    res = evaluate(RandomAgent(0), "all", tasks=["move-ego-0-0", "jump-2", "a_pose", "stand"], episodes=2, steps=12,
+                   motions=library, out=tmp_path, show_progress=False)
+    assert set(res["reward"]) == {"move-ego-0-0", "jump-2"} and set(res["goal"]) == {"a_pose"}
+    assert set(res["tracking"]) == {"stand"}
+    for r in res["reward"].values():
+        assert 0 <= r["return_mean"] <= 12 and len(r["returns"]) == 2
+    assert res["reward"]["move-ego-0-0"]["category"] == "Stand"
+    g = res["goal"]["a_pose"]
+    assert 0 <= g["proximity"] <= 1 and g["success"] in (0.0, 0.5, 1.0)
+    assert res["tracking"]["stand"]["success"] == 0.0 and res["tracking"]["stand"]["emd"] > 0.5
+    saved = json.loads((tmp_path / "results.json").read_text())
+    assert saved["summary"] == json.loads(json.dumps(res["summary"]))
+    for png in ("reward_tasks.png", "reward_categories.png", "goal_proximity.png", "goal_success.png",
+                "tracking_emd.png"):
+        assert (tmp_path / png).stat().st_size > 1000
+
+
+def test_oracle_beats_floor_baselines(library):
+    kw = dict(tasks=["a_pose", "arms_stretch", "stand", "tpose"], episodes=2, steps=45, motions=library,
+              fall_prob=0.0, show_progress=False)
+    oracle = evaluate(PoseOracle(library.clips), "all", **kw)
+    zero = evaluate(ZeroAgent(), "all", **kw)
+    for goal in ("a_pose", "arms_stretch"):  # a_pose is near the (stand clip) start: anyone passes by it
+        assert oracle["goal"][goal]["success"] == 1.0
+        assert oracle["goal"][goal]["proximity"] > zero["goal"][goal]["proximity"] + 0.5
+    assert zero["goal"]["arms_stretch"]["success"] == 0.0
+    assert oracle["tracking"]["stand"]["success"] == 1.0 and zero["tracking"]["stand"]["success"] == 0.0
+    for clip in ("stand", "tpose"):
+        assert oracle["tracking"][clip]["emd"] < 0.2 * zero["tracking"][clip]["emd"]
+
+
+def test_same_seed_same_results(library):
+    kw = dict(suite="reward", tasks=["move-ego-0-0"], episodes=2, steps=10, show_progress=False, seed=3)
+    a = evaluate(RandomAgent(1), **kw)["reward"]["move-ego-0-0"]["returns"]
+    b = evaluate(RandomAgent(1), **kw)["reward"]["move-ego-0-0"]["returns"]
+    assert a == b
+
+
+def test_bad_arguments(library):
+    with pytest.raises(ValueError, match="suite"):
+        evaluate(ZeroAgent(), "dance")
+    with pytest.raises(ValueError, match="Known families"):
+        evaluate(ZeroAgent(), "reward", tasks=["not-a-task"], show_progress=False)
+    with pytest.raises(ValueError, match="motions"):
+        evaluate(ZeroAgent(), "tracking")
+    with pytest.raises(ValueError, match="episodes"):
+        evaluate(ZeroAgent(), "reward", episodes=0)
+
+
+def test_cli_eval_command(tmp_path):
+    from fbcpr.cli import eval_cmd
+
+    app = typer.Typer()
+    app.callback()(lambda: None)  # a group, as in the real app with several commands
+    eval_cmd.register(app)
+    runner = CliRunner()
+    out = tmp_path / "ev"
+    res = runner.invoke(app, ["eval", "zero", "--suite", "reward", "--tasks", "move-ego-0-0,raisearms-l-l",
+                              "--episodes", "1", "--steps", "5", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "move-ego-0-0" in res.output and (out / "results.json").exists()
+    bad = runner.invoke(app, ["eval", "random", "--tasks", "fly-away", "--out", str(tmp_path / "x")])
+    assert bad.exit_code == 1 and "unknown reward" in bad.output and "Traceback" not in bad.output
+    assert make_agent("random").name == "random"

@@ -1,0 +1,59 @@
+"""Metrics of App. C.3 on small synthetic trajectories whose values are worked out by hand."""
+import numpy as np
+import pytest
+
+from fbcpr.evaluation.metrics import d_smpl, emd, goal_proximity, goal_success, pose_part, tracking_success
+
+
+def traj(values, dim=0):
+    """(T, 358) trajectory whose pose coordinate `dim` follows `values`; velocities are noise (ignored)."""
+    out = np.random.default_rng(len(values)).normal(size=(len(values), 358))
+    out[:, :214] = 0.0
+    out[:, dim] = values
+    return out
+
+
+def test_d_smpl_uses_only_the_pose_part():
+    a, b = np.zeros(358), np.zeros(358)
+    b[214:] = 7.0  # velocities differ: no distance
+    assert d_smpl(a, b) == 0.0
+    b[3], b[200] = 3.0, 4.0
+    assert d_smpl(a, b) == pytest.approx(5.0)
+    assert d_smpl(a[:214], b) == pytest.approx(5.0)  # pose vectors work too
+    np.testing.assert_allclose(d_smpl(np.zeros((2, 3, 358)), b), np.full((2, 3), 5.0))
+
+
+def test_goal_success_and_proximity_by_hand():
+    d = np.array([[5.0, 3.0, 2.5, 1.0], [6.0, 4.0, 4.5, 2.1]])
+    np.testing.assert_array_equal(goal_success(d), [1.0, 0.0])
+    # per step: d<=2 -> 1; 2<d<=4 -> (4-d)/2; d>4 -> 0
+    np.testing.assert_allclose(goal_proximity(d), [(0 + 0.5 + 0.75 + 1) / 4, (0 + 0 + 0 + 0.95) / 4])
+    assert goal_success(np.array([2.0])) == 1.0 and goal_proximity(np.array([2.0])) == 1.0
+
+
+def test_tracking_success_by_hand():
+    ref = traj([0.0, 1.0, 2.0, 3.0])
+    assert tracking_success(traj([0.0, 1.4, 2.5, 3.0]), ref)
+    assert not tracking_success(traj([0.0, 1.6, 2.0, 3.0]), ref)  # one step at 0.6 > 0.5
+    with pytest.raises(ValueError, match="equal shape"):
+        tracking_success(traj([0.0, 1.0]), ref)
+
+
+def test_emd_by_hand():
+    ref = traj([0.0, 1.0, 2.0])
+    assert emd(traj([2.0, 0.0, 1.0]), ref) == pytest.approx(0.0, abs=1e-12)  # time order does not matter
+    assert emd(traj([0.0, 1.0, 2.0]) + np.eye(358)[5] * 2, ref) == pytest.approx(2.0)  # constant 2 offset
+    assert emd(traj([1.0, 2.0, 3.0]), ref) == pytest.approx(1.0)  # total transport 3, mass 1/3 each
+    assert emd(traj([1.0]), traj([0.0, 2.0])) == pytest.approx(1.0)  # unequal lengths: uniform weights
+
+
+def test_metric_inputs_are_checked():
+    with pytest.raises(ValueError, match="358"):
+        d_smpl(np.zeros(10), np.zeros(10))
+    bad = np.zeros((3, 358))
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        emd(bad, np.zeros((3, 358)))
+    with pytest.raises(ValueError, match="non-empty"):
+        emd(np.zeros((0, 358)), np.zeros((3, 358)))
+    assert pose_part(np.ones((2, 358))).shape == (2, 214)
