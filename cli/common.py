@@ -16,20 +16,23 @@ F = TypeVar("F", bound=Callable[..., object])
 
 console = Console()
 err_console = Console(stderr=True)
-_state = {"debug": os.environ.get("FBCPR_DEBUG", "") not in ("", "0")}
+_state = {"debug": False}
+
+
+def _env_debug() -> bool:
+    return os.environ.get("FBCPR_DEBUG", "") not in ("", "0")
 
 
 def debug_enabled() -> bool:
     """True under `fbcpr --debug ...` or FBCPR_DEBUG=1."""
-    return _state["debug"]
+    return _state["debug"] or _env_debug()
 
 
 def _global_options(
     debug: bool = typer.Option(False, "--debug", help="Show full tracebacks on errors (also FBCPR_DEBUG=1)."),
 ) -> None:
     """FB-CPR behavioral foundation model for the SMPL humanoid."""
-    if debug:
-        _state["debug"] = True
+    _state["debug"] = debug  # set on every invocation, so one --debug run does not leak into the next
 
 
 def register(app: typer.Typer) -> None:
@@ -50,7 +53,7 @@ def cli_errors(fn: F) -> F:
             if debug_enabled():
                 raise
             msg = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-            err_console.print(f"[bold red]error:[/] {escape(msg)}", highlight=False)
+            err_console.print(f"[bold red]error:[/] {escape(msg)}", highlight=False, soft_wrap=True)
             err_console.print("[dim](run `fbcpr --debug ...` for the traceback)[/]")
             sys.stderr.flush()
             raise typer.Exit(1) from None

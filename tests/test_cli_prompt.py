@@ -1,0 +1,146 @@
+"""`fbcpr prompt`, `fbcpr track`, `fbcpr timeline` end to end on a tiny checkpoint made here."""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from fbcpr.checkpoint import save_checkpoint
+from fbcpr.cli.app import app
+from fbcpr.config import config_from_dict
+from fbcpr.model import FBCPRModel
+from humanoid_env.model import NV, load_model
+from humanoid_env.observation import observe
+from humanoid_env.render import renderer_available
+from motions.clip import from_qpos, save_clip
+
+torch.set_num_threads(1)
+HAS_RENDERER = renderer_available()
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory) -> Path:
+    torch.manual_seed(0)
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
+                            "agent": {"seq_length": 4, "batch_size": 8}})
+    m = load_model()
+    rng = np.random.default_rng(0)
+    qpos = np.tile(m.qpos0, (64, 1))
+    qpos[:, 7:] = np.clip(rng.normal(0.0, 0.3, (64, 69)), m.jnt_range[1:, 0], m.jnt_range[1:, 1])
+    qpos[:, 2] += rng.uniform(-0.8, 0.5, 64)
+    qvel = rng.normal(0.0, 1.0, (64, NV))
+    obs = observe(m, qpos, qvel)
+    model = FBCPRModel(cfg.model)
+    model.obs_normalizer.update(torch.as_tensor(obs))
+    buf = {"next_obs": obs, "qpos": qpos, "qvel": qvel}
+    return save_checkpoint(tmp_path_factory.mktemp("cli") / "tiny", model, cfg, reward_buffer=buf)
+
+
+@pytest.fixture(scope="module")
+def clip_path(tmp_path_factory) -> Path:
+    qpos = np.tile(load_model().qpos0, (8, 1))
+    qpos[:, 7 + 45] = np.linspace(0.0, 0.8, 8)
+    return save_clip(from_qpos(qpos, name="arm_swing"), tmp_path_factory.mktemp("clips") / "arm_swing.npz")
+
+
+def run(*args: str):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_prompt_reward_prints_return(ckpt, tmp_path):
+    video = tmp_path / "reward.mp4"
+    args = ["prompt", ckpt, "--reward", "move-ego-0-0", "--steps", "4"] + (["--video", video] if HAS_RENDERER else [])
+    res = run(*args)
+    assert res.exit_code == 0, res.output
+    assert "return" in res.output and "mean reward" in res.output
+    ret = float(res.output.split("return")[1].split()[1])
+    assert 0.0 <= ret <= 4.0
+    if HAS_RENDERER:
+        import imageio.v2 as imageio
+
+        assert len(imageio.mimread(video)) == 5  # the start frame plus one per step
+
+
+def test_prompt_goal_and_imitate_metrics(ckpt, clip_path):
+    res = run("prompt", ckpt, "--goal", "t_pose", "--steps", "3")
+    assert res.exit_code == 0, res.output
+    assert "final d_smpl" in res.output and "proximity" in res.output
+    res = run("prompt", ckpt, "--imitate", clip_path, "--steps", "3")
+    assert res.exit_code == 0, res.output
+    assert "EMD to clip" in res.output
+
+
+def test_track_prints_success_and_emd(ckpt, clip_path, tmp_path):
+    video = tmp_path / "track.mp4"
+    res = run("track", ckpt, clip_path, *(["--video", video] if HAS_RENDERER else []))
+    assert res.exit_code == 0, res.output
+    assert "tracking success" in res.output and "EMD" in res.output and "8 / 8" in res.output
+    if HAS_RENDERER:
+        import imageio.v2 as imageio
+
+        frames = imageio.mimread(video)
+        assert len(frames) == 8 and frames[0].shape[1] == 2 * frames[0].shape[0] * 320 // 240  # agent | reference
+
+
+def test_timeline_runs_every_segment(ckpt, clip_path, tmp_path):
+    spec = f"move-ego-0-2:0.1,t_pose:0.1,{clip_path}:0.1"
+    video = tmp_path / "timeline.mp4"
+    res = run("timeline", ckpt, spec, *(["--video", video] if HAS_RENDERER else []))
+    assert res.exit_code == 0, res.output
+    for text in ("mean reward", "final d_smpl", "EMD to clip", "reward", "goal", "clip"):
+        assert text in res.output
+    if HAS_RENDERER:
+        assert video.stat().st_size > 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["prompt", "{ckpt}", "--reward", "fly-to-moon"], "unknown reward task 'fly-to-moon'"),
+    (["prompt", "{ckpt}", "--goal", "t_pose", "--reward", "jump-2"], "exactly one of"),
+    (["prompt", "{missing}", "--goal", "t_pose"], "no such checkpoint directory"),
+    (["track", "{ckpt}", "{missing}.npz"], "no such clip file"),
+    (["timeline", "{ckpt}", "jump-2:abc"], "not a number"),
+])
+def test_bad_input_is_one_clean_line(ckpt, tmp_path, args, message):
+    res = run(*[a.format(ckpt=ckpt, missing=tmp_path / "missing") for a in args])
+    assert res.exit_code == 1
+    assert message in res.output and "Traceback" not in res.output
+    assert isinstance(res.exception, SystemExit)
+
+
+def test_debug_flag_shows_the_exception(ckpt):
+    res = run("--debug", "prompt", ckpt, "--reward", "fly-to-moon")
+    assert res.exit_code != 0 and "fly-to-moon" in str(res.exception)
+    assert not isinstance(res.exception, SystemExit)
+    assert run("prompt", ckpt, "--reward", "fly-to-moon").exit_code == 1  # --debug does not stick
+
+
+def test_cli_loads_from_offline_hub_cache(ckpt, tmp_path):
+    """A real process with HF_HUB_OFFLINE=1 and HF_HUB_CACHE: the repo id resolves to the cached snapshot."""
+    sha = "89abcdef0123456789abcdef0123456789abcdef"
+    repo = tmp_path / "models--org--tiny-bfm"
+    shutil.copytree(ckpt, repo / "snapshots" / sha)
+    (repo / "refs").mkdir()
+    (repo / "refs" / "main").write_text(sha)
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_HUB_CACHE": str(tmp_path), "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "fbcpr.cli.app"]
+    ok = subprocess.run(cmd + ["prompt", "org/tiny-bfm", "--goal", "t_pose", "--steps", "2"],
+                        env=env, capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0, ok.stderr
+    assert "final d_smpl" in ok.stdout
+
+
+def test_cli_missing_repo_offline(tmp_path, monkeypatch):
+    import huggingface_hub.constants
+
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_OFFLINE", True)
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_CACHE", str(tmp_path))
+    res = run("prompt", "org/not-cached", "--goal", "t_pose")
+    assert res.exit_code == 1
+    assert "not in the local cache" in res.output and "Traceback" not in res.output
