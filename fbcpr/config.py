@@ -45,7 +45,7 @@ class ModelConfig:
     action_dim: int | None = _f(None, POSITIVE)
     z_dim: int = _f(256, POSITIVE)
     hidden_dim: int = _f(1024, _check(lambda v: v >= 2 and v % 2 == 0, "must be an even int >= 2"))
-    hidden_layers: int = _f(2, NON_NEGATIVE)
+    hidden_layers: int = _f(1, NON_NEGATIVE)
     embedding_layers: int = _f(2, _check(lambda v: v >= 2, "must be >= 2"))
     backward_hidden_dim: int = _f(256, POSITIVE)
     backward_hidden_layers: int = _f(1, POSITIVE)
@@ -140,11 +140,11 @@ class Config:
 PRESETS: dict[str, dict[str, Any]] = {
     "tiny": dict(z_dim=8, hidden_dim=32, hidden_layers=1, backward_hidden_dim=32, discriminator_hidden_dim=32,
                  discriminator_hidden_layers=2),
-    "small": dict(z_dim=64, hidden_dim=256, hidden_layers=2, backward_hidden_dim=128, discriminator_hidden_dim=256,
+    "small": dict(z_dim=64, hidden_dim=256, hidden_layers=1, backward_hidden_dim=128, discriminator_hidden_dim=256,
                   discriminator_hidden_layers=3),
-    "paper-S": dict(z_dim=256, hidden_dim=1024, hidden_layers=2, backward_hidden_dim=256, discriminator_hidden_dim=1024,
+    "paper-S": dict(z_dim=256, hidden_dim=1024, hidden_layers=1, backward_hidden_dim=256, discriminator_hidden_dim=1024,
                     discriminator_hidden_layers=3),
-    "paper-M": dict(z_dim=256, hidden_dim=2048, hidden_layers=2, backward_hidden_dim=256, discriminator_hidden_dim=1024,
+    "paper-M": dict(z_dim=256, hidden_dim=2048, hidden_layers=1, backward_hidden_dim=256, discriminator_hidden_dim=1024,
                     discriminator_hidden_layers=3),
 }
 

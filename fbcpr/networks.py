@@ -28,10 +28,8 @@ class EnsembleLinear(nn.Module):
 
     def forward(self, x: Tensor, detach_params: bool = False) -> Tensor:
         w, b = (self.weight.detach(), self.bias.detach()) if detach_params else (self.weight, self.bias)
-        if x.dim() == 2:  # input shared by all members: one (n, in) x (in, m*out) matmul
-            n = x.shape[0]
-            y = x @ w.transpose(0, 1).reshape(self.in_features, self.members * self.out_features)
-            return y.view(n, self.members, self.out_features).transpose(0, 1) + b
+        if x.dim() == 2:  # input shared by all members: a stride-0 view, no copy
+            x = x.expand(self.members, -1, -1)
         return torch.baddbmm(b, x, w)
 
 

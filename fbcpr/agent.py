@@ -1,0 +1,201 @@
+"""FBCPRAgent: one gradient step of Algorithm 1 on every network, plus target nets and z sampling.
+
+All losses are computed from the same pre-update parameters (as in the pseudocode, lines 14-33) and
+summed into one backward pass. Forward passes that several losses use are computed once:
+B(s') feeds the FB loss, the orthonormality loss, Sigma_B and the online-goal relabeling; the (s, z)
+embeddings of F and Q feed both their TD losses and the actor loss; the actor's next action and the
+target nets feed both TD targets; expert and online states go through the discriminator in one batch.
+The actor loss evaluates F and Q with detached weights, so one backward leaves them untouched by it.
+"""
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from fbcpr import losses
+from fbcpr.config import AgentConfig, ModelConfig
+from fbcpr.model import FBCPRModel
+from fbcpr.networks import project_sphere
+
+#: Modules with a Polyak-averaged target copy.
+TARGETS = ("forward_map", "backward_map", "critic")
+#: Optimised modules and the AgentConfig field holding each learning rate.
+OPTIMISED = {"forward_map": "lr_f", "backward_map": "lr_b", "actor": "lr_actor", "critic": "lr_critic",
+             "discriminator": "lr_discriminator"}
+
+
+class FBCPRAgent:
+    """Model + target networks + Adam optimisers + the update of Algorithm 1."""
+
+    def __init__(self, model_cfg: ModelConfig, agent_cfg: AgentConfig, device: str | torch.device = "cpu",
+                 seed: int = 0) -> None:
+        self.cfg = agent_cfg
+        self.device = torch.device(device)
+        torch.manual_seed(seed)
+        self.model = FBCPRModel(model_cfg).to(self.device)
+        self.targets = nn.ModuleDict({k: copy.deepcopy(getattr(self.model, k)) for k in TARGETS})
+        self.targets.requires_grad_(False)
+        self.optimizers = {
+            k: torch.optim.Adam(getattr(self.model, k).parameters(), lr=getattr(agent_cfg, lr), betas=(0.9, 0.999),
+                                eps=1e-8)
+            for k, lr in OPTIMISED.items()
+        }
+        self.generator = torch.Generator(device=self.device)
+        self.generator.manual_seed(seed)
+        self.num_updates = 0
+        self._compute = torch.compile(self._losses) if agent_cfg.compile else self._losses
+
+    # ------------------------------------------------------------------------------------- z sampling
+    def sample_z(self, n: int, online_b: Tensor | None, expert_z: Tensor | None) -> Tensor:
+        """n draws from nu: ER_FB of expert windows (z_expert), B of online states (z_online), uniform sphere.
+
+        A component whose source is missing (no online states yet, no demonstrations) gives way to uniform."""
+        g, dev = self.generator, self.device
+        p = torch.tensor([self.cfg.z_expert if expert_z is not None else 0.0,
+                          self.cfg.z_online if online_b is not None else 0.0], device=dev)
+        u = torch.rand(n, generator=g, device=dev)
+        z = project_sphere(torch.randn(n, self.model.cfg.z_dim, generator=g, device=dev))
+        if expert_z is not None:
+            idx = torch.randint(expert_z.shape[0], (n,), generator=g, device=dev)
+            z = torch.where((u < p[0])[:, None], expert_z[idx], z)
+        if online_b is not None:
+            idx = torch.randint(online_b.shape[0], (n,), generator=g, device=dev)
+            z = torch.where(((u >= p[0]) & (u < p[0] + p[1]))[:, None], online_b[idx], z)
+        return z
+
+    def relabel(self, z: Tensor, online_b: Tensor, expert_z: Tensor | None) -> Tensor:
+        """Replace each z with probability relabel_prob by a fresh draw from nu (lines 17-18).
+
+        online_b are B values of online states (here B(s') of the batch, already computed)."""
+        fresh = self.sample_z(z.shape[0], online_b, expert_z)
+        keep = torch.rand(z.shape[0], generator=self.generator, device=self.device) >= self.cfg.relabel_prob
+        return torch.where(keep[:, None], z, fresh)
+
+    @torch.no_grad()
+    def encode_windows(self, windows_n: Tensor) -> Tensor:
+        """ER_FB: mean of B over each (normalized) window, projected to the sphere. (w, L, obs) -> (w, d)."""
+        w, L, o = windows_n.shape
+        return project_sphere(self.model.backward_map(windows_n.reshape(w * L, o)).view(w, L, -1).mean(1))
+
+    # ------------------------------------------------------------------------------------- update
+    def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, float]:
+        """One gradient step on all networks. batch: obs, action, next_obs, z, terminated (n rows);
+        expert_windows: (n / seq_length, seq_length, obs_dim) raw observations from the motion data."""
+        dev = self.device
+        obs, action, next_obs, z_buf = (batch[k].to(dev, torch.float32) for k in ("obs", "action", "next_obs", "z"))
+        terminated = batch["terminated"].to(dev, torch.float32).reshape(-1)
+        expert = expert_windows.to(dev, torch.float32)
+        expert_flat = expert.reshape(-1, expert.shape[-1])
+        self.model.obs_normalizer.update(torch.cat([obs, expert_flat]))
+        out = self._compute(obs, action, next_obs, z_buf, terminated, expert)
+        total = out.pop("_total")
+        for opt in self.optimizers.values():
+            opt.zero_grad(set_to_none=True)
+        total.backward()
+        for opt in self.optimizers.values():
+            opt.step()
+        self.soft_update()
+        self.num_updates += 1
+        keys = list(out)
+        values = torch.stack([out[k].detach().float() for k in keys]).tolist()
+        return dict(zip(keys, values))
+
+    def _losses(self, obs: Tensor, action: Tensor, next_obs: Tensor, z_buf: Tensor, terminated: Tensor,
+                expert: Tensor) -> dict[str, Tensor]:
+        cfg, model, tg = self.cfg, self.model, self.targets
+        n, (w, L, o) = obs.shape[0], expert.shape
+        obs_n, next_n = model.normalize(obs), model.normalize(next_obs)
+        expert_n = model.normalize(expert)
+        discount = cfg.discount * (1.0 - terminated)
+
+        # discriminator: expert (s, ER_FB(window)) vs online (s, z) in one forward, plus WGAN-GP
+        z_exp = self.encode_windows(expert_n)
+        z_exp_states = z_exp.repeat_interleave(L, 0)
+        s_exp = expert_n.reshape(w * L, o)
+        logits = model.discriminator.logits(torch.cat([s_exp, obs_n]), torch.cat([z_exp_states, z_buf]))
+        disc = losses.discriminator_loss(logits[: w * L], logits[w * L:])
+        k = min(w * L, n)
+        mix = torch.rand(k, generator=self.generator, device=self.device)
+        gp = losses.gradient_penalty(model.discriminator, s_exp[:k], z_exp_states[:k], obs_n[:k], z_buf[:k], mix)
+
+        # B(s') once: FB loss, ortho loss, Sigma_B, online-goal relabeling
+        B_next = model.backward_map(next_n)
+        B_det = B_next.detach()
+        z = self.relabel(z_buf, B_det, z_exp)
+
+        with torch.no_grad():
+            a_next = model.actor_sample(next_n, z, self.generator)
+            F_next = tg["forward_map"](next_n, a_next, z)                       # (m, n, d)
+            target_M = losses.pessimistic(torch.einsum("mid,jd->mij", F_next, tg["backward_map"](next_n)),
+                                          cfg.fb_pessimism)
+            target_Fz = losses.pessimistic((F_next * z).sum(-1), cfg.fz_pessimism)
+            target_Q = losses.pessimistic(tg["critic"](next_n, a_next, z)[..., 0], cfg.critic_pessimism)
+            reward = model.discriminator.logits(obs_n, z)                       # log D - log(1 - D)
+            r_fz = losses.implicit_reward(B_det, z)
+
+        # F: FB TD loss + Fz regularisation; Q: TD on the discriminator reward
+        ez_F = model.forward_map.embed(obs_n, z)
+        F_sa = model.forward_map(obs_n, action, z, z_embedding=ez_F)
+        M = torch.einsum("mid,jd->mij", F_sa, B_next)
+        fb = losses.fb_loss(M, target_M, discount)
+        fz = losses.td_loss((F_sa * z).sum(-1), r_fz, target_Fz, discount)
+        ortho = losses.ortho_loss(B_next)
+        ez_Q = model.critic.embed(obs_n, z)
+        Q_sa = model.critic(obs_n, action, z, z_embedding=ez_Q)[..., 0]
+        critic = losses.td_loss(Q_sa, reward, target_Q, discount)
+
+        # actor: F and Q with frozen weights at a ~ pi(s, z), reusing their (s, z) embeddings
+        a_pi = model.actor_sample(obs_n, z, self.generator)
+        Fz_pi = (model.forward_map(obs_n, a_pi, z, detach_params=True, z_embedding=ez_F.detach()) * z).sum(-1)
+        Q_pi = model.critic(obs_n, a_pi, z, detach_params=True, z_embedding=ez_Q.detach())[..., 0]
+        actor = losses.actor_loss(Fz_pi, Q_pi, cfg.actor_reg_coef, cfg.actor_pessimism)
+
+        total = (disc + cfg.grad_penalty * gp + fb + cfg.fz_coef * fz + cfg.ortho_coef * ortho + critic + actor)
+        return {
+            "_total": total, "fb_loss": fb, "fz_loss": fz, "ortho_loss": ortho, "critic_loss": critic,
+            "actor_loss": actor, "disc_loss": disc, "grad_penalty": gp, "reward": reward.mean(),
+            "q": Q_sa.mean(), "fz": Fz_pi.mean(), "M_diag": torch.diagonal(M, dim1=-2, dim2=-1).mean(),
+            "disc_expert": torch.sigmoid(logits[: w * L]).mean(), "disc_online": torch.sigmoid(logits[w * L:]).mean(),
+        }
+
+    @torch.no_grad()
+    def soft_update(self) -> None:
+        """Polyak averaging target <- (1 - tau) target + tau online, one fused op over all tensors."""
+        tgt = [p for k in TARGETS for p in self.targets[k].parameters()]
+        src = [p for k in TARGETS for p in getattr(self.model, k).parameters()]
+        torch._foreach_lerp_(tgt, src, self.cfg.tau)
+
+    # ------------------------------------------------------------------------------------- state
+    def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:
+        """Everything beyond the model needed to continue exactly: targets, optimisers, generator."""
+        tensors: dict[str, Tensor] = {f"target.{k}": v for k, v in self.targets.state_dict().items()}
+        meta: dict[str, Any] = {"num_updates": self.num_updates, "optimizers": {}}
+        for name, opt in self.optimizers.items():
+            sd = opt.state_dict()
+            meta["optimizers"][name] = {"param_groups": sd["param_groups"], "state_keys": {}}
+            for idx, st in sd["state"].items():
+                meta["optimizers"][name]["state_keys"][str(idx)] = sorted(st)
+                for key, val in st.items():
+                    tensors[f"optim.{name}.{idx}.{key}"] = torch.as_tensor(val)
+        tensors["agent_generator"] = self.generator.get_state()
+        return tensors, meta
+
+    def load_state(self, tensors: dict[str, Tensor], meta: dict[str, Any]) -> None:
+        from fbcpr.checkpoint import CheckpointError, load_state_strict
+
+        targets = {k[len("target."):]: v for k, v in tensors.items() if k.startswith("target.")}
+        load_state_strict(self.targets, targets, "trainer_state.safetensors (target networks)")
+        self.targets.to(self.device)
+        try:
+            for name, opt in self.optimizers.items():
+                om = meta["optimizers"][name]
+                state = {int(idx): {key: tensors[f"optim.{name}.{idx}.{key}"] for key in keys}
+                         for idx, keys in om["state_keys"].items()}
+                opt.load_state_dict({"state": state, "param_groups": om["param_groups"]})
+            self.generator.set_state(tensors["agent_generator"])
+            self.num_updates = int(meta["num_updates"])
+        except (KeyError, ValueError, RuntimeError) as e:
+            raise CheckpointError(f"trainer_state.safetensors: optimizer/generator state does not match ({e})") from None

@@ -1,0 +1,89 @@
+"""Online replay buffer: a ring of (s, a, s', z, qpos, qvel, terminated) with optional np.memmap storage.
+
+qpos/qvel are those of the next state s', the state a reward is evaluated on, so a subsample of
+(next_obs, qpos, qvel) is exactly what reward prompts need (`reward_inference_sample`).
+Large buffers (the paper's 5M transitions of the humanoid are ~15 GB) live in memory-mapped files.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+FIELDS = ("obs", "action", "next_obs", "z", "qpos", "qvel", "terminated")
+
+
+def transition_specs(obs_dim: int, action_dim: int, z_dim: int, nq: int, nv: int) -> dict[str, tuple[int, ...]]:
+    """Per-transition shapes of every stored field."""
+    return {"obs": (obs_dim,), "action": (action_dim,), "next_obs": (obs_dim,), "z": (z_dim,), "qpos": (nq,),
+            "qvel": (nv,), "terminated": ()}
+
+
+class ReplayBuffer:
+    """Fixed-capacity FIFO of transitions, stored as float32 arrays (memmapped when `memmap_dir` is given)."""
+
+    def __init__(self, capacity: int, specs: dict[str, tuple[int, ...]], memmap_dir: str | Path | None = None) -> None:
+        missing = [f for f in FIELDS if f not in specs]
+        if missing:
+            raise ValueError(f"ReplayBuffer specs: missing fields {missing}")
+        self.capacity, self.specs = capacity, dict(specs)
+        self.size, self.pos = 0, 0
+        self.memmap_dir = Path(memmap_dir) if memmap_dir is not None else None
+        if self.memmap_dir is not None:
+            self.memmap_dir.mkdir(parents=True, exist_ok=True)
+        self.data = {k: self._alloc(k, (capacity, *shape)) for k, shape in specs.items()}
+
+    def _alloc(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        if self.memmap_dir is None:
+            return np.zeros(shape, dtype=np.float32)
+        return np.lib.format.open_memmap(self.memmap_dir / f"{name}.npy", mode="w+", dtype=np.float32, shape=shape)
+
+    @staticmethod
+    def bytes_needed(capacity: int, specs: dict[str, tuple[int, ...]]) -> int:
+        return 4 * capacity * sum(int(np.prod(s)) for s in specs.values())
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add(self, batch: dict[str, np.ndarray]) -> None:
+        """Append k transitions (every field with leading dim k), overwriting the oldest when full."""
+        k = len(batch["obs"])
+        for name, shape in self.specs.items():
+            arr = np.asarray(batch[name], dtype=np.float32)
+            if arr.shape != (k, *shape):
+                raise ValueError(f"ReplayBuffer.add: field {name!r} has shape {arr.shape}, expected {(k, *shape)}")
+        idx = (self.pos + np.arange(k)) % self.capacity
+        for name in self.specs:
+            self.data[name][idx] = batch[name]
+        self.pos = int((self.pos + k) % self.capacity)
+        self.size = int(min(self.size + k, self.capacity))
+
+    def sample(self, rng: np.random.Generator, n: int, fields: tuple[str, ...] = FIELDS) -> dict[str, torch.Tensor]:
+        """n transitions uniformly with replacement, as float32 tensors."""
+        if self.size == 0:
+            raise RuntimeError("ReplayBuffer.sample: the buffer is empty")
+        idx = np.sort(rng.integers(0, self.size, size=n))  # sorted: sequential reads on memmaps
+        return {k: torch.from_numpy(np.ascontiguousarray(self.data[k][idx])) for k in fields}
+
+    def reward_inference_sample(self, max_n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """Up to max_n distinct transitions' (next_obs, qpos, qvel): the checkpoint's reward buffer."""
+        n = min(max_n, self.size)
+        idx = np.sort(rng.choice(self.size, size=n, replace=False))
+        return {"next_obs": np.asarray(self.data["next_obs"][idx]), "qpos": np.asarray(self.data["qpos"][idx]),
+                "qvel": np.asarray(self.data["qvel"][idx])}
+
+    def state(self) -> tuple[dict[str, torch.Tensor], dict[str, int]]:
+        """Filled part of the buffer, for an exact resume."""
+        return ({k: torch.from_numpy(np.asarray(v[: self.size])) for k, v in self.data.items()},
+                {"size": self.size, "pos": self.pos, "capacity": self.capacity})
+
+    def load_state(self, tensors: dict[str, torch.Tensor], meta: dict[str, int]) -> None:
+        size = int(meta["size"])
+        if size > self.capacity:
+            raise ValueError(f"replay buffer: saved size {size} exceeds capacity {self.capacity}")
+        for k in self.specs:
+            if k not in tensors or tuple(tensors[k].shape) != (size, *self.specs[k]):
+                raise ValueError(f"replay buffer: field {k!r} missing or of the wrong shape")
+            self.data[k][:size] = tensors[k].numpy()
+        self.size, self.pos = size, int(meta["pos"]) % self.capacity

@@ -1,0 +1,135 @@
+"""Environment factory for the trainer: builds the batched env and its demonstrations from an `EnvConfig`.
+
+The trainer only sees an `EnvBundle` (a Gymnasium VectorEnv with the humanoid's info conventions, a
+library with `sample_windows` / `sample_states` / `set_priorities_from_emd`, and per-clip reference
+trajectories), so it never knows how clips were imported or which environment it is training on.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from fbcpr.config import EnvConfig
+from fbcpr.networks import project_sphere
+
+
+@dataclass
+class EnvBundle:
+    env: Any                                              # gymnasium VectorEnv, SAME_STEP autoreset
+    library: Any                                          # demonstrations (MotionLibrary-like)
+    obs_dim: int
+    action_dim: int
+    nq: int
+    nv: int
+    make_eval_env: Callable[[int, int], Any]              # (num_envs, max_episode_steps) -> VectorEnv
+    clip_obs: Callable[[int], np.ndarray]                 # clip index -> (T, obs_dim) reference observations
+    clip_start: Callable[[int], tuple[np.ndarray, np.ndarray]]  # clip index -> (qpos, qvel) of frame 0
+    emd: Callable[[np.ndarray, np.ndarray], float]        # tracking EMD between two (T, obs_dim) trajectories
+    success: Callable[[np.ndarray, np.ndarray], bool]     # tracking success (time-aligned)
+
+
+def make_env(cfg: EnvConfig, num_envs: int, seed: int) -> EnvBundle:
+    """Build the configured environment (`humanoid` or `toy`) with `num_envs` parallel copies."""
+    if cfg.name == "toy":
+        return _toy(cfg, num_envs)
+    return _humanoid(cfg, num_envs)
+
+
+def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
+    from fbcpr.toy import pointmass as pm
+
+    lib = pm.DemoLibrary(pm.demo_paths())
+    init = pm.MixtureInit(cfg.fall_prob, lib)
+
+    def pos_err(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(a[:, :2] - b[:, :2], axis=-1)
+
+    return EnvBundle(
+        env=pm.PointMassVectorEnv(num_envs, init=init, max_episode_steps=cfg.max_episode_steps),
+        library=lib, obs_dim=pm.OBS_DIM, action_dim=pm.ACTION_DIM, nq=pm.NQ, nv=pm.NV,
+        make_eval_env=lambda n, steps: pm.PointMassVectorEnv(n, max_episode_steps=steps),
+        clip_obs=lambda i: lib.clips[i],
+        clip_start=lambda i: (lib.clips[i][0, : pm.NQ].astype(np.float64), lib.clips[i][0, pm.NQ:].astype(np.float64)),
+        # mean position error in units of 0.1, so the paper's EMD bins [0.5, 5] span 0.05-0.5 of the arena
+        emd=lambda a, b: float(10.0 * pos_err(a, b).mean()),
+        success=lambda a, b: bool((pos_err(a, b) <= 0.1).all()),
+    )
+
+
+def _humanoid(cfg: EnvConfig, num_envs: int) -> EnvBundle:
+    from humanoid_env import NQ, NU, NV, OBS_DIM
+    from humanoid_env.inits import make_init
+    from humanoid_env.vector import VectorHumanoidEnv
+    from motions.library import MotionLibrary
+
+    if cfg.motions == "synthetic":
+        from motions.synthetic import default_library
+
+        lib = default_library()
+    else:
+        path = Path(cfg.motions)
+        if not path.exists():
+            raise FileNotFoundError(f"env.motions: {path} does not exist (give a folder of clip .npz files or 'synthetic')")
+        lib = MotionLibrary.load(path)
+    from fbcpr.evaluation.metrics import emd, tracking_success
+
+    return EnvBundle(
+        env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib), max_episode_steps=cfg.max_episode_steps),
+        library=lib, obs_dim=OBS_DIM, action_dim=NU, nq=NQ, nv=NV,
+        make_eval_env=lambda n, steps: VectorHumanoidEnv(n, max_episode_steps=steps),
+        clip_obs=lambda i: lib.clips[i].obs,
+        clip_start=lambda i: (lib.clips[i].qpos[0], lib.clips[i].qvel[0]),
+        emd=emd, success=tracking_success,
+    )
+
+
+def tracking_latents(model: Any, obs_seq: np.ndarray, seq_length: int) -> torch.Tensor:
+    """z_t ∝ sum_{j=t+1}^{t+L} B(s_j) for every t of a reference (T, obs_dim); the window shrinks at the end."""
+    with torch.no_grad():
+        b = model.backward(torch.as_tensor(obs_seq, dtype=torch.float32, device=model.device))
+        csum = torch.cat([torch.zeros_like(b[:1]), b.cumsum(0)])        # csum[k] = sum_{j<k} b_j
+        T = b.shape[0]
+        t = torch.arange(T, device=b.device)
+        hi = torch.clamp(t + seq_length + 1, max=T)
+        lo = torch.clamp(t + 1, max=T - 1)  # the last step keeps its own state as target
+        return project_sphere(csum[hi] - csum[lo])
+
+
+def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: int, max_steps: int) -> list[np.ndarray]:
+    """Roll out the policy tracking each clip from its first frame (one env per clip, all in one batch).
+
+    Returns the agent's observation trajectories, each as long as min(clip length, max_steps + 1)."""
+    refs = [bundle.clip_obs(i)[: max_steps + 1] for i in clip_ids]
+    horizon = max(len(r) for r in refs) - 1
+    zs = [tracking_latents(model, r, seq_length) for r in refs]
+    z_all = torch.stack([torch.cat([z, z[-1:].expand(horizon + 1 - len(z), -1)]) for z in zs])  # (n, H+1, d)
+    starts = [bundle.clip_start(i) for i in clip_ids]
+    env = bundle.make_eval_env(len(clip_ids), horizon + 1)
+    try:
+        obs, _ = env.reset(seed=0, options={"qpos": np.stack([s[0] for s in starts]), "qvel": np.stack([s[1] for s in starts])})
+        traj = [obs]
+        for t in range(horizon):
+            action = model.act(torch.as_tensor(obs, device=model.device), z_all[:, t], mean=True)
+            obs, *_ , info = env.step(action.cpu().numpy())
+            traj.append(info["final_obs"])
+    finally:
+        env.close()
+    traj_arr = np.stack(traj, 1)
+    return [traj_arr[k, : len(r)] for k, r in enumerate(refs)]
+
+
+def tracking_scores(model: Any, bundle: EnvBundle, seq_length: int, max_clips: int, max_steps: int,
+                    rng: np.random.Generator) -> dict[str, tuple[float, bool]]:
+    """{clip name: (EMD, success)} for up to max_clips clips (all of them when the library is small enough)."""
+    n = len(bundle.library.names)
+    ids = list(range(n)) if n <= max_clips else sorted(rng.choice(n, size=max_clips, replace=False).tolist())
+    trajs = track_clips(model, bundle, ids, seq_length, max_steps)
+    out = {}
+    for i, traj in zip(ids, trajs):
+        ref = bundle.clip_obs(i)[: len(traj)]
+        out[bundle.library.names[i]] = (bundle.emd(traj, ref), bundle.success(traj, ref))
+    return out

@@ -1,0 +1,1 @@
+"""A toy point-mass world with demonstrations, for fast tests and learning evidence."""

@@ -1,0 +1,97 @@
+"""Zero-shot evaluation on the point mass: goal reaching, reward maximisation and demo imitation.
+
+The same protocol runs a trained model, an untrained one, or a uniform random policy (model=None), so
+the numbers in docs/results.md compare like with like. z inference follows App. C.5.3: z = B(goal),
+z_r ∝ Σ exp(10 r(s)) r(s) B(s) over reward-labelled states, and z_t ∝ Σ_{j=t+1}^{t+L} B(s_j) for tracking.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from fbcpr.envs import tracking_latents
+from fbcpr.networks import project_sphere
+from fbcpr.toy import pointmass as pm
+
+N_STARTS = 10          # episodes per goal / per task
+HORIZON = 100
+REWARD_SAMPLES = 20_000
+
+
+def _act(model: Any, obs: np.ndarray, z: torch.Tensor | None, rng: np.random.Generator) -> np.ndarray:
+    if model is None:
+        return rng.uniform(-1, 1, size=(len(obs), pm.ACTION_DIM))
+    return model.act(torch.as_tensor(obs, dtype=torch.float32), z, mean=True).numpy()
+
+
+def _rest_obs(pos: np.ndarray) -> np.ndarray:
+    return np.concatenate([pos, np.zeros_like(pos)], 1).astype(np.float32)
+
+
+def goal_reaching(model: Any, rng: np.random.Generator) -> dict[str, float]:
+    """Reach each of pm.GOALS (at rest) from random rest states: final distance, success (< 0.1), proximity."""
+    goals = np.repeat(pm.GOALS, N_STARTS, 0)
+    env = pm.PointMassVectorEnv(len(goals), max_episode_steps=HORIZON + 1)
+    obs, _ = env.reset(seed=int(rng.integers(1 << 31)))
+    z = None if model is None else model.backward(torch.as_tensor(_rest_obs(goals)))
+    dists = []
+    for _ in range(HORIZON):
+        obs, *_ = env.step(_act(model, obs, z, rng))
+        dists.append(np.linalg.norm(obs[:, :2] - goals, axis=1))
+    d = np.stack(dists, 1)
+    return {"goal_final_dist": float(d[:, -1].mean()), "goal_success": float((d[:, -1] < 0.1).mean()),
+            "goal_proximity": float((d[:, HORIZON // 2:] < 0.1).mean())}
+
+
+def reward_z(model: Any, task: str, rng: np.random.Generator, temperature: float = 10.0) -> torch.Tensor:
+    """Weighted-regression z for a task over states spread uniformly over the arena."""
+    pos = rng.uniform(-1, 1, size=(REWARD_SAMPLES, 2))
+    vel = rng.uniform(-0.1, 0.1, size=(REWARD_SAMPLES, 2))
+    obs = np.concatenate([pos, vel], 1).astype(np.float32)
+    r = torch.as_tensor(pm.get_task(task)(obs), dtype=torch.float32)
+    b = model.backward(torch.as_tensor(obs))
+    w = torch.softmax(temperature * r, 0) * r
+    return project_sphere((w[:, None] * b).sum(0, keepdim=True))
+
+
+def reward_returns(model: Any, rng: np.random.Generator) -> dict[str, float]:
+    """Mean episode return (100 steps, reward in [0, 1] per step) of each task from random rest states."""
+    out = {}
+    for task in pm.TASKS:
+        env = pm.PointMassVectorEnv(N_STARTS, reward=task, max_episode_steps=HORIZON + 1)
+        obs, _ = env.reset(seed=int(rng.integers(1 << 31)))
+        z = None if model is None else reward_z(model, task, rng).expand(N_STARTS, -1)
+        total = np.zeros(N_STARTS)
+        for _ in range(HORIZON):
+            obs, r, *_ = env.step(_act(model, obs, z, rng))
+            total += r
+        out[f"return/{task}"] = float(total.mean())
+    return out
+
+
+def imitation(model: Any, rng: np.random.Generator, seq_length: int = 8) -> dict[str, float]:
+    """Track each demonstration from its first state: mean position error and fraction of steps within 0.1."""
+    demos = pm.demo_paths()
+    errs = {}
+    for name, ref in demos.items():
+        env = pm.PointMassVectorEnv(1, max_episode_steps=len(ref) + 1)
+        obs, _ = env.reset(options={"qpos": ref[:1, :2], "qvel": ref[:1, 2:]})
+        zs = None if model is None else tracking_latents(model, ref, seq_length)
+        err = []
+        for t in range(len(ref) - 1):
+            obs, *_ = env.step(_act(model, obs, None if zs is None else zs[t: t + 1], rng))
+            err.append(np.linalg.norm(obs[0, :2] - ref[t + 1, :2]))
+        errs[name] = np.array(err)
+    all_err = np.concatenate(list(errs.values()))
+    return {"track_error": float(all_err.mean()), "track_within_0.1": float((all_err < 0.1).mean()),
+            **{f"track_error/{k}": float(v.mean()) for k, v in errs.items()}}
+
+
+def evaluate(model: Any, seed: int = 0, seq_length: int = 8) -> dict[str, float]:
+    """All three zero-shot protocols; model=None evaluates a uniform random policy."""
+    rng = np.random.default_rng(seed)
+    if model is not None:
+        model.eval()
+    return {**goal_reaching(model, rng), **reward_returns(model, rng), **imitation(model, rng, seq_length)}

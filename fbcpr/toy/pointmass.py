@@ -1,0 +1,186 @@
+"""A 2-D point mass with demonstrations: a seconds-scale stand-in for the humanoid in tests and benchmarks.
+
+State: position p in [-1, 1]^2 and velocity v. Action a in [-1, 1]^2 accelerates with damping:
+v' = 0.8 v + 0.02 a (top speed 0.1 per step), p' = clip(p + v'), and hitting a wall stops that axis.
+Observation = qpos ++ qvel = (x, y, vx, vy). The batched env mirrors `VectorHumanoidEnv`'s API
+(SAME_STEP autoreset, info["qpos"/"qvel"], info["final_obs"/"final_qpos"/"final_qvel"], "_final_obs").
+The demonstration library mirrors `motions.MotionLibrary` (windows, states, EMD priorities), and the tasks
+are rewards on the next observation, like the humanoid's reward registry.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from motions.library import priorities_from_emd
+
+OBS_DIM, ACTION_DIM, NQ, NV = 4, 2, 2, 2
+DAMPING, GAIN = 0.8, 0.02
+EPISODE_STEPS = 100
+
+#: Reward on next observations (N, 4) -> (N,) in [0, 1].
+ToyReward = Callable[[np.ndarray], np.ndarray]
+
+
+def _tolerance(dist: np.ndarray, margin: float) -> np.ndarray:
+    return np.exp(-0.5 * (dist / margin) ** 2)
+
+
+TASKS: dict[str, ToyReward] = {
+    "reach-top-right": lambda o: _tolerance(np.linalg.norm(o[:, :2] - np.array([0.6, 0.6]), axis=1), 0.15),
+    "left-wall": lambda o: (o[:, 0] < -0.7).astype(np.float64),
+    "fast": lambda o: np.minimum(1.0, np.linalg.norm(o[:, 2:], axis=1) / 0.08),
+    "circle-ccw": lambda o: _tolerance(np.abs(np.linalg.norm(o[:, :2], axis=1) - 0.5), 0.08)
+    * np.clip((o[:, 0] * o[:, 3] - o[:, 1] * o[:, 2]) / (0.5 * 0.04), 0.0, 1.0),
+}
+GOALS = np.array([[0.6, 0.6], [-0.6, 0.6], [0.0, -0.7], [-0.5, -0.5], [0.7, -0.2]])
+
+
+def get_task(name: str) -> ToyReward:
+    if name not in TASKS:
+        raise KeyError(f"unknown toy task {name!r}; known: {sorted(TASKS)}")
+    return TASKS[name]
+
+
+def dynamics(qpos: np.ndarray, qvel: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One batched step of the point mass."""
+    v = DAMPING * qvel + GAIN * np.clip(action, -1.0, 1.0)
+    p = qpos + v
+    hit = np.abs(p) > 1.0
+    return np.clip(p, -1.0, 1.0), np.where(hit, 0.0, v)
+
+
+class UniformInit:
+    """Rest states uniformly in [-0.9, 0.9]^2 (the toy's 'fall' init: states no demonstration visits)."""
+
+    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+        return rng.uniform(-0.9, 0.9, size=(n, NQ)), np.zeros((n, NV))
+
+
+class MixtureInit:
+    """Uniform init with probability fall_prob, demonstration states otherwise."""
+
+    def __init__(self, fall_prob: float, demos: "DemoLibrary | None") -> None:
+        self.fall_prob, self.demos, self.uniform = (fall_prob if demos is not None else 1.0), demos, UniformInit()
+
+    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+        qpos, qvel = self.uniform.sample(rng, n)
+        use_demo = rng.random(n) >= self.fall_prob
+        if self.demos is not None and use_demo.any():
+            dq, dv = self.demos.sample_states(rng, int(use_demo.sum()))
+            qpos[use_demo], qvel[use_demo] = dq, dv
+        return qpos, qvel
+
+
+class PointMassVectorEnv(VectorEnv):
+    """num_envs point masses stepped together in numpy."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int, init: Any | None = None, reward: ToyReward | str | None = None,
+                 max_episode_steps: int = EPISODE_STEPS) -> None:
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.num_envs, self.max_episode_steps = num_envs, max_episode_steps
+        self.init = init if init is not None else UniformInit()
+        self.reward_fn = get_task(reward) if isinstance(reward, str) else reward
+        self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._np_random, _ = seeding.np_random(None)
+        self.qpos, self.qvel = np.zeros((num_envs, NQ)), np.zeros((num_envs, NV))
+        self.steps = np.zeros(num_envs, dtype=np.int64)
+
+    def _obs(self) -> np.ndarray:
+        return np.concatenate([self.qpos, self.qvel], 1).astype(np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None:
+            self._np_random, _ = seeding.np_random(int(seed))
+        if options and "qpos" in options:
+            self.qpos = np.array(options["qpos"], dtype=np.float64).reshape(self.num_envs, NQ)
+            self.qvel = np.array(options.get("qvel", np.zeros((self.num_envs, NV))), dtype=np.float64).reshape(self.num_envs, NV)
+        else:
+            self.qpos, self.qvel = self.init.sample(self.np_random, self.num_envs)
+        self.steps[:] = 0
+        return self._obs(), {"qpos": self.qpos.copy(), "qvel": self.qvel.copy()}
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        a = np.asarray(actions, dtype=np.float64)
+        if a.shape != (self.num_envs, ACTION_DIM):
+            raise ValueError(f"actions must have shape ({self.num_envs}, {ACTION_DIM}), got {a.shape}")
+        self.qpos, self.qvel = dynamics(self.qpos, self.qvel, a)
+        obs = self._obs()
+        reward = self.reward_fn(obs) if self.reward_fn is not None else np.zeros(self.num_envs)
+        self.steps += 1
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        truncated = self.steps >= self.max_episode_steps
+        info: dict[str, Any] = {"final_obs": obs.copy(), "final_qpos": self.qpos.copy(), "final_qvel": self.qvel.copy(),
+                                "_final_obs": truncated.copy()}
+        ids = np.flatnonzero(truncated)
+        if len(ids):
+            self.qpos[ids], self.qvel[ids] = self.init.sample(self.np_random, len(ids))
+            self.steps[ids] = 0
+            obs = self._obs()
+        info["qpos"], info["qvel"] = self.qpos.copy(), self.qvel.copy()
+        return obs, np.asarray(reward, dtype=np.float64), terminated, truncated, info
+
+
+def _path_to_demo(p: np.ndarray) -> np.ndarray:
+    """Observations (T, 4) of a position path, with the velocities the dynamics imply (p_t - p_{t-1})."""
+    v = np.diff(p, axis=0, prepend=p[:1] - (p[1:2] - p[:1]))
+    return np.concatenate([p, v], 1).astype(np.float32)
+
+
+def demo_paths(length: int = 200) -> dict[str, np.ndarray]:
+    """Observation-only demonstrations: circles, a figure eight and two sweeps (feasible: |a| < 1)."""
+    t = np.arange(length, dtype=np.float64)
+    w = 0.04 / 0.5
+    paths = {
+        "circle-ccw": 0.5 * np.stack([np.cos(w * t), np.sin(w * t)], 1),
+        "circle-cw-small": np.array([0.3, -0.2]) + 0.3 * np.stack([np.cos(-0.1 * t), np.sin(-0.1 * t)], 1),
+        "figure-eight": np.stack([0.6 * np.sin(0.05 * t), 0.4 * np.sin(0.1 * t)], 1),
+        "sweep-top": np.stack([0.8 * np.sin(0.05 * t), np.full(length, 0.6)], 1),
+        "sweep-left": np.stack([np.full(length, -0.6), 0.8 * np.sin(0.05 * t + 1.0)], 1),
+    }
+    return {k: _path_to_demo(v) for k, v in paths.items()}
+
+
+class DemoLibrary:
+    """Demonstrations with the motion library's sampling API (observation windows, states, priorities)."""
+
+    def __init__(self, demos: dict[str, np.ndarray]) -> None:
+        self.names = list(demos)
+        self.clips = [demos[n] for n in self.names]
+        self.lengths = np.array([len(c) for c in self.clips])
+        self.offsets = np.concatenate([[0], np.cumsum(self.lengths)[:-1]])
+        self._obs = np.concatenate(self.clips).astype(np.float32)
+        self.priorities = np.ones(len(self.clips))
+
+    def __len__(self) -> int:
+        return len(self.clips)
+
+    def set_priorities_from_emd(self, emd: dict[str, float]) -> None:
+        missing = sorted(set(self.names) - set(emd))
+        if missing:
+            raise ValueError(f"set_priorities_from_emd: missing names {missing}")
+        self.priorities = priorities_from_emd(np.array([emd[n] for n in self.names]))
+
+    def _pick(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        return rng.choice(len(self.clips), size=n, p=self.priorities / self.priorities.sum())
+
+    def sample_windows(self, rng: np.random.Generator, n: int, length: int) -> np.ndarray:
+        m = self._pick(rng, n)
+        start = (rng.random(n) * (self.lengths[m] - length + 1)).astype(int)
+        return self._obs[(self.offsets[m] + start)[:, None] + np.arange(length)[None]]
+
+    def sample_states(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+        m = self._pick(rng, n)
+        obs = self._obs[self.offsets[m] + (rng.random(n) * self.lengths[m]).astype(int)].astype(np.float64)
+        return obs[:, :NQ], obs[:, NQ:]

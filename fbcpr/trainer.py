@@ -1,0 +1,354 @@
+"""Online FB-CPR training loop (Algorithm 1 with the protocol of App. C.5.1).
+
+Each iteration collects `rollout_steps` transitions from `num_envs` parallel envs (random actions during
+warm-up, then the policy with z ~ nu resampled every `z_update_every` steps), then runs
+`updates_per_rollout` gradient steps. Every `priority_every` env steps the policy tracks the clips and the
+motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the
+model, the exact learner state (target nets, optimisers, normaliser, counters, RNG states, env states and
+optionally the replay buffer) and a reward-inference subsample of the buffer. SIGINT/SIGTERM ends the
+run at the next safe point with a final checkpoint.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import random
+import shutil
+import signal
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from fbcpr.agent import FBCPRAgent
+from fbcpr.buffer import ReplayBuffer, transition_specs
+from fbcpr.checkpoint import CheckpointError, load_checkpoint, load_state_strict, save_checkpoint
+from fbcpr.config import Config, ConfigError
+from fbcpr.envs import EnvBundle, make_env, tracking_scores
+
+LIVE_KEYS = ("fb_loss", "actor_loss", "critic_loss", "disc_loss", "reward")
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"train.device: {name} requested but CUDA is not available")
+    return torch.device(name)
+
+
+class Trainer:
+    """Owns env, agent, buffer and logs of one run directory (`out_dir`)."""
+
+    def __init__(self, cfg: Config, out_dir: str | Path, resume: bool = False,
+                 evaluate: Callable[[FBCPRAgent], dict[str, float]] | None = None, progress: bool = True) -> None:
+        self.out = Path(out_dir)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.progress_enabled = progress
+        self.custom_eval = evaluate
+        tc = cfg.train
+        if tc.torch_threads:
+            torch.set_num_threads(tc.torch_threads)
+        self.device = resolve_device(tc.device)
+        self.bundle: EnvBundle = make_env(cfg.env, tc.num_envs, tc.seed)
+        b = self.bundle
+        for key, have in (("obs_dim", b.obs_dim), ("action_dim", b.action_dim)):
+            given = getattr(cfg.model, key)
+            if given is not None and given != have:
+                raise ConfigError(f"model.{key}: {given} does not match the {cfg.env.name} env ({have})")
+        self.cfg = cfg = replace(cfg, model=replace(cfg.model, obs_dim=b.obs_dim, action_dim=b.action_dim))
+        if cfg.agent.batch_size > tc.buffer_capacity:
+            raise ConfigError("train.buffer_capacity: must be >= agent.batch_size")
+
+        random.seed(tc.seed)
+        np.random.seed(tc.seed)
+        self.rng = np.random.default_rng(tc.seed)
+        self.agent = FBCPRAgent(cfg.model, cfg.agent, self.device, tc.seed)
+        specs = transition_specs(b.obs_dim, b.action_dim, cfg.model.z_dim, b.nq, b.nv)
+        big = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) > tc.buffer_memmap_mb * 2**20
+        self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if big else None)
+
+        self.env_steps = self.updates = self.episodes = 0
+        self.next_priority = tc.priority_every or math.inf
+        self.next_eval = tc.eval_every or math.inf
+        self.next_ckpt = tc.checkpoint_every or math.inf
+        self.next_log = 0
+        self.emd: dict[str, float] = {}
+        self.last_metrics: dict[str, float] = {}
+        self._stop = False
+        self.obs, info = b.env.reset(seed=tc.seed)
+        self.z = self._sample_rollout_z(tc.num_envs)
+        self.z_age = np.zeros(tc.num_envs, dtype=np.int64)
+        if resume:
+            self._resume()
+        self.csv_path = self.out / "metrics.csv"
+        self._writer: Any = None
+
+    # --------------------------------------------------------------------------------- z for rollouts
+    def _sample_rollout_z(self, n: int) -> torch.Tensor:
+        """n draws from nu: B of online states (from the buffer), ER_FB of demo windows, uniform."""
+        agent, L = self.agent, self.cfg.agent.seq_length
+        online_b = expert_z = None
+        with torch.no_grad():
+            if len(self.buffer) > 0:
+                s = self.buffer.sample(self.rng, n, fields=("next_obs",))["next_obs"].to(self.device)
+                online_b = agent.model.backward_map(agent.model.normalize(s))
+            win = torch.as_tensor(self.bundle.library.sample_windows(self.rng, n, L), device=self.device)
+            expert_z = agent.encode_windows(agent.model.normalize(win))
+            return agent.sample_z(n, online_b, expert_z)
+
+    # --------------------------------------------------------------------------------- main loop
+    def run(self, max_env_steps: int | None = None) -> dict[str, Any]:
+        """Train until total_env_steps (or max_env_steps more steps, or a stop signal); returns a summary."""
+        tc = self.cfg.train
+        stop_at = tc.total_env_steps if max_env_steps is None else min(tc.total_env_steps, self.env_steps + max_env_steps)
+        handlers = self._install_signals()
+        t0, steps0 = time.perf_counter(), self.env_steps
+        steps_per_phase = max(1, math.ceil(tc.rollout_steps / tc.num_envs))
+        try:
+            with self._progress(stop_at) as (progress, task):
+                while self.env_steps < stop_at and not self._stop:
+                    for _ in range(steps_per_phase):
+                        self._env_step()
+                        if self._stop:
+                            break
+                    if not self._stop and self.env_steps >= tc.warmup_steps and len(self.buffer) >= self.cfg.agent.batch_size:
+                        for _ in range(tc.updates_per_rollout):
+                            self._update()
+                    self._periodic(t0, steps0)
+                    if progress is not None:
+                        live = " ".join(f"{k}={self.last_metrics[k]:.3g}" for k in LIVE_KEYS if k in self.last_metrics)
+                        progress.update(task, completed=self.env_steps, description=f"upd {self.updates} {live}")
+            path = self.save()
+        finally:
+            for sig, h in handlers.items():
+                signal.signal(sig, h)
+            if self._writer is not None:
+                self._writer.flush()
+        return {"env_steps": self.env_steps, "updates": self.updates, "checkpoint": str(path),
+                "interrupted": self._stop, "seconds": time.perf_counter() - t0, **self.last_metrics}
+
+    def _env_step(self) -> None:
+        tc, agent, env = self.cfg.train, self.agent, self.bundle.env
+        n = tc.num_envs
+        stale = np.flatnonzero(self.z_age >= tc.z_update_every)
+        if len(stale):
+            self.z[torch.as_tensor(stale, device=self.device)] = self._sample_rollout_z(len(stale))
+            self.z_age[stale] = 0
+        if self.env_steps < tc.warmup_steps:
+            action = self.rng.uniform(-1.0, 1.0, size=(n, self.bundle.action_dim)).astype(np.float32)
+        else:
+            action = agent.model.act(torch.as_tensor(self.obs, device=self.device), self.z, mean=False,
+                                     generator=agent.generator).cpu().numpy()
+        next_obs, _, terminated, truncated, info = env.step(action)
+        self.buffer.add({"obs": self.obs, "action": action, "next_obs": info["final_obs"], "z": self.z.cpu().numpy(),
+                         "qpos": info["final_qpos"], "qvel": info["final_qvel"], "terminated": terminated})
+        done = np.asarray(terminated | truncated)
+        self.obs = next_obs
+        self.z_age += 1
+        self.z_age[done] = tc.z_update_every  # a new episode gets a new z
+        self.episodes += int(done.sum())
+        self.env_steps += n
+
+    def _update(self) -> None:
+        a = self.cfg.agent
+        batch = self.buffer.sample(self.rng, a.batch_size)
+        windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, a.batch_size // a.seq_length, a.seq_length))
+        self.last_metrics = self.agent.update(batch, windows)
+        self.updates += 1
+
+    # --------------------------------------------------------------------------------- periodic work
+    def _periodic(self, t0: float, steps0: int) -> None:
+        tc = self.cfg.train
+        extra: dict[str, float] = {}
+        if self.env_steps >= self.next_priority or self.env_steps >= self.next_eval:
+            extra.update(self.evaluate(refresh_priorities=self.env_steps >= self.next_priority))
+            while self.next_priority <= self.env_steps:
+                self.next_priority += tc.priority_every
+            while self.next_eval <= self.env_steps:
+                self.next_eval += tc.eval_every
+        if self.env_steps >= self.next_log or extra:
+            fps = (self.env_steps - steps0) / max(time.perf_counter() - t0, 1e-9)
+            self._log({"env_steps": self.env_steps, "updates": self.updates, "episodes": self.episodes,
+                       "env_steps_per_s": fps, **self.last_metrics, **extra})
+            while self.next_log <= self.env_steps:
+                self.next_log += tc.log_every
+        if self.env_steps >= self.next_ckpt:
+            self.save()
+            while self.next_ckpt <= self.env_steps:
+                self.next_ckpt += tc.checkpoint_every
+
+    def evaluate(self, refresh_priorities: bool = False) -> dict[str, float]:
+        """Track the clips (tracking EMD / success), optionally refresh priorities, plus the custom eval hook."""
+        tc = self.cfg.train
+        rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
+        scores = tracking_scores(self.agent.model, self.bundle, self.cfg.agent.seq_length, tc.priority_max_clips,
+                                 self.cfg.env.max_episode_steps, rng)
+        for name, (e, _) in scores.items():
+            self.emd[name] = e
+        out = {"eval/tracking_emd": float(np.mean([e for e, _ in scores.values()])),
+               "eval/tracking_success": float(np.mean([s for _, s in scores.values()]))}
+        if refresh_priorities:
+            fill = float(np.median(list(self.emd.values())))
+            self.bundle.library.set_priorities_from_emd({n: self.emd.get(n, fill) for n in self.bundle.library.names})
+        if self.custom_eval is not None:
+            out.update({f"eval/{k}": float(v) for k, v in self.custom_eval(self.agent).items()})
+        return out
+
+    def _log(self, row: dict[str, float]) -> None:
+        if self._writer is None:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._writer = SummaryWriter(str(self.out / "tb"))
+        for k, v in row.items():
+            if k != "env_steps":
+                self._writer.add_scalar(k, v, self.env_steps)
+        new = not self.csv_path.exists()
+        with open(self.csv_path, "a", newline="") as f:
+            w = csv.writer(f)
+            if new:
+                w.writerow(["key", "value", "env_steps"])
+            for k, v in row.items():
+                w.writerow([k, f"{v:.6g}", self.env_steps])
+
+    # --------------------------------------------------------------------------------- checkpoints
+    def save(self) -> Path:
+        """Checkpoint into out/checkpoints/step_XXXXXXXXXX and point out/checkpoints/latest at it."""
+        tc = self.cfg.train
+        root = self.out / "checkpoints"
+        path = root / f"step_{self.env_steps:010d}"
+        tensors, meta = self.agent.state()
+        tensors.update({"torch_rng": torch.get_rng_state(), "env_qpos": torch.as_tensor(self._env_state()[0]),
+                        "env_qvel": torch.as_tensor(self._env_state()[1]), "env_obs": torch.as_tensor(self.obs),
+                        "z": self.z.cpu(), "z_age": torch.as_tensor(self.z_age),
+                        "env_episode_steps": torch.as_tensor(_episode_counter(self.bundle.env)),
+                        "priorities": torch.as_tensor(np.asarray(self.bundle.library.priorities, dtype=np.float64))})
+        if torch.cuda.is_available():
+            tensors["cuda_rng"] = torch.cuda.get_rng_state()
+        py_state = random.getstate()
+        meta.update({
+            "env_steps": self.env_steps, "updates": self.updates, "episodes": self.episodes,
+            "next_priority": _num(self.next_priority), "next_eval": _num(self.next_eval),
+            "next_ckpt": _num(self.next_ckpt), "next_log": self.next_log, "emd": self.emd,
+            "numpy_rng": self.rng.bit_generator.state, "numpy_global": _np_global_state(),
+            "python_rng": [py_state[0], list(py_state[1]), py_state[2]],
+            "buffer": {"size": len(self.buffer), "pos": self.buffer.pos},
+            "env_rng": self.bundle.env.np_random.bit_generator.state,
+        })
+        reward = self.buffer.reward_inference_sample(tc.reward_buffer_size, np.random.default_rng(self.env_steps)) \
+            if len(self.buffer) and tc.reward_buffer_size else None
+        replay = self.buffer.state() if tc.save_buffer else None
+        save_checkpoint(path, self.agent.model, self.cfg, trainer_state=(tensors, meta), reward_buffer=reward,
+                        replay_buffer=replay)
+        tmp = root / ".latest.tmp"
+        tmp.write_text(path.name)
+        os.replace(tmp, root / "latest")
+        old = sorted(p for p in root.glob("step_*") if p.is_dir())[: -tc.keep_checkpoints]
+        for p in old:
+            if p != path:
+                shutil.rmtree(p, ignore_errors=True)
+        return path
+
+    def _env_state(self) -> tuple[np.ndarray, np.ndarray]:
+        env = self.bundle.env
+        if hasattr(env, "_good_qpos"):
+            return np.asarray(env._good_qpos), np.asarray(env._good_qvel)
+        return np.asarray(env.qpos), np.asarray(env.qvel)
+
+    def _resume(self) -> None:
+        root = self.out / "checkpoints"
+        latest = root / "latest"
+        if not latest.exists():
+            raise CheckpointError(f"{root}: nothing to resume (no 'latest' pointer)")
+        ckpt = load_checkpoint(root / latest.read_text().strip(), self.device)
+        load_state_strict(self.agent.model, ckpt.model.state_dict(), str(ckpt.path / "model.safetensors"))
+        tensors, meta = ckpt.trainer_state()
+        self.agent.load_state(tensors, meta)
+        try:
+            self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
+            self.next_priority, self.next_eval = _inf(meta["next_priority"]), _inf(meta["next_eval"])
+            self.next_ckpt, self.next_log, self.emd = _inf(meta["next_ckpt"]), meta["next_log"], meta["emd"]
+            self.rng.bit_generator.state = meta["numpy_rng"]
+            np.random.set_state(tuple(meta["numpy_global"]))
+            v, st, gauss = meta["python_rng"]
+            random.setstate((v, tuple(st), gauss))
+            torch.set_rng_state(tensors["torch_rng"])
+            if "cuda_rng" in tensors and torch.cuda.is_available():
+                torch.cuda.set_rng_state(tensors["cuda_rng"])
+            self.bundle.library.priorities = tensors["priorities"].numpy().copy()
+            self.z = tensors["z"].to(self.device)
+            self.z_age = tensors["z_age"].numpy().copy()
+            self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(), "qvel": tensors["env_qvel"].numpy()})
+            self.bundle.env.np_random.bit_generator.state = meta["env_rng"]
+            _episode_counter(self.bundle.env)[:] = tensors["env_episode_steps"].numpy()
+        except KeyError as e:
+            raise CheckpointError(f"{ckpt.path}/trainer_state.safetensors: missing entry {e}") from None
+        replay = ckpt.replay_buffer()
+        if replay is not None:
+            self.buffer.load_state(*replay)
+        elif self.cfg.train.save_buffer:
+            raise CheckpointError(f"{ckpt.path}: train.save_buffer is set but the checkpoint has no replay buffer")
+
+    # --------------------------------------------------------------------------------- plumbing
+    def _install_signals(self) -> dict[int, Any]:
+        def stop(signum: int, frame: Any) -> None:
+            self._stop = True
+
+        old = {}
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                old[sig] = signal.signal(sig, stop)
+            except ValueError:  # not the main thread
+                pass
+        return old
+
+    def _progress(self, total: int) -> Any:
+        from contextlib import contextmanager
+
+        @contextmanager
+        def ctx():  # type: ignore[no-untyped-def]
+            if not self.progress_enabled:
+                yield None, None
+                return
+            cols = [TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,} steps"),
+                    TimeElapsedColumn(), TimeRemainingColumn()]
+            with Progress(*cols, transient=False) as progress:
+                task = progress.add_task("training", total=total, completed=self.env_steps)
+                yield progress, task
+
+        return ctx()
+
+
+def _episode_counter(env: Any) -> np.ndarray:
+    """The env's per-env step-in-episode counters (so a resumed run truncates episodes at the same steps)."""
+    counter = getattr(env, "steps", getattr(env, "_steps", None))
+    if not isinstance(counter, np.ndarray):
+        raise TypeError(f"{type(env).__name__}: no per-env episode step counter to save")
+    return counter
+
+
+def _num(x: float) -> float | None:
+    return None if math.isinf(x) else x
+
+
+def _inf(x: float | None) -> float:
+    return math.inf if x is None else x
+
+
+def _np_global_state() -> list[Any]:
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    return [name, keys.tolist(), int(pos), int(has_gauss), float(cached)]
+
+
+def train(cfg: Config, out_dir: str | Path, resume: bool = False, progress: bool = True) -> dict[str, Any]:
+    """Build a Trainer and run it to the end (or until interrupted)."""
+    trainer = Trainer(cfg, out_dir, resume=resume, progress=progress)
+    summary = trainer.run()
+    (Path(out_dir) / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    return summary
