@@ -49,22 +49,29 @@ def assemble(xpos: np.ndarray, xmat: np.ndarray, cvel: np.ndarray, com: np.ndarr
 
     xpos (N,24,3), xmat (N,24,3,3), cvel (N,24,6) as MuJoCo's [angular, linear at com],
     com (N,3) the root subtree's centre of mass (the point cvel's linear part refers to).
+    All 119 world vectors (23 positions, 48 tangent/normal axes, 24 + 24 velocities) are stacked in
+    observation order and turned into the heading frame by one batched matmul: the env calls this every
+    step, so it keeps to a few large numpy operations.
     """
     n = xpos.shape[0]
-    rot_h_t = np.swapaxes(heading_rotation(xmat[:, 0]), -1, -2)  # world -> heading
-    root = xpos[:, :1]
-    rel = np.einsum("nij,nbj->nbi", rot_h_t, xpos[:, 1:] - root)
-    local_rot = np.einsum("nij,nbjk->nbik", rot_h_t, xmat)
-    tan_norm = np.concatenate([local_rot[..., :, 0], local_rot[..., :, 2]], axis=-1)
-    ang = cvel[..., :3]
-    lin = cvel[..., 3:] + np.cross(ang, xpos - com[:, None, :])
-    lin_h = np.einsum("nij,nbj->nbi", rot_h_t, lin)
-    ang_h = np.einsum("nij,nbj->nbi", rot_h_t, ang)
-    out = np.concatenate(
-        [xpos[:, 0, 2:3], rel.reshape(n, -1), tan_norm.reshape(n, -1), lin_h.reshape(n, -1), ang_h.reshape(n, -1)],
-        axis=1,
-    )
-    return out.astype(np.float32)
+    vec = np.empty((n, 119, 3))
+    np.subtract(xpos[:, 1:], xpos[:, :1], out=vec[:, :23])
+    vec[:, 23:71].reshape(n, N_BODIES, 2, 3)[:] = np.swapaxes(xmat[..., ::2], -1, -2)  # x and z axes
+    ang, r = cvel[..., :3], xpos - com[:, None, :]
+    lin = vec[:, 71:95]
+    # linear velocity at each body origin: v_com + w x r
+    np.multiply(ang[..., 1], r[..., 2], out=lin[..., 0])
+    lin[..., 0] -= ang[..., 2] * r[..., 1]
+    np.multiply(ang[..., 2], r[..., 0], out=lin[..., 1])
+    lin[..., 1] -= ang[..., 0] * r[..., 2]
+    np.multiply(ang[..., 0], r[..., 1], out=lin[..., 2])
+    lin[..., 2] -= ang[..., 1] * r[..., 0]
+    lin += cvel[..., 3:]
+    vec[:, 95:] = ang
+    out = np.empty((n, OBS_DIM), np.float32)
+    out[:, 0] = xpos[:, 0, 2]
+    out[:, 1:] = np.matmul(vec, heading_rotation(xmat[:, 0])).reshape(n, OBS_DIM - 1)  # v @ R = R^T v: world -> heading
+    return out
 
 
 def read_kinematics(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, ...]:

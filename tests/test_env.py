@@ -247,3 +247,15 @@ def test_rendering_error_names_mujoco_gl():
     env["MUJOCO_GL"] = "glfw"  # a windowing backend without a display
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert run.stdout.startswith("RENDERED") or ("ERROR" in run.stdout and "MUJOCO_GL=glfw" in run.stdout), run.stdout + run.stderr
+
+
+def test_rollout_command_prints_stats():
+    from typer.testing import CliRunner
+
+    from fbcpr.cli.app import app
+
+    result = CliRunner().invoke(app, ["rollout", "--steps", "20", "--policy", "random", "--seed", "1"])
+    assert result.exit_code == 0, result.output
+    assert "steps/s" in result.output and "diverged" in result.output and "20" in result.output
+    bad = CliRunner().invoke(app, ["rollout", "--policy", "fast"])
+    assert bad.exit_code != 0
