@@ -4,7 +4,6 @@ from __future__ import annotations
 import typer
 
 from fbcpr.cli import env_cmd
-from fbcpr.cli import env_cmd
 from fbcpr.cli import eval_cmd
 from fbcpr.cli import common, prompt_cmd
 from fbcpr.cli import train_cmd
@@ -12,7 +11,6 @@ from fbcpr.cli import train_cmd
 app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid.", no_args_is_help=True)
 
 # Command modules: each defines `register(app: typer.Typer) -> None`. Add one import + one call per module.
-env_cmd.register(app)
 env_cmd.register(app)
 eval_cmd.register(app)
 common.register(app)
