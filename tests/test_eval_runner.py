@@ -127,3 +127,31 @@ def test_cli_eval_command(tmp_path):
     bad = runner.invoke(app, ["eval", "random", "--tasks", "fly-away", "--out", str(tmp_path / "x")])
     assert bad.exit_code == 1 and "unknown reward" in bad.output and "Traceback" not in bad.output
     assert make_agent("random").name == "random"
+
+
+def test_cli_eval_on_a_tiny_checkpoint(tmp_path):
+    """A real (untrained, tiny) FB-CPR checkpoint goes through all three suites via BFM.load."""
+    import torch
+
+    from fbcpr.checkpoint import save_checkpoint
+    from fbcpr.cli import eval_cmd
+    from fbcpr.config import config_from_dict
+    from fbcpr.model import FBCPRModel
+
+    torch.manual_seed(0)
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
+                            "agent": {"seq_length": 4, "batch_size": 8}})
+    rng = np.random.default_rng(0)
+    states = np.stack([goal_obs(g) for g in ("a_pose", "t_pose", "crouch_low", "lie_back")] * 4)
+    buf = {"next_obs": states, "qpos": rng.normal(size=(16, 76)), "qvel": rng.normal(size=(16, 75))}
+    ckpt = save_checkpoint(tmp_path / "tiny", FBCPRModel(cfg.model), cfg, reward_buffer=buf)
+    app = typer.Typer()
+    app.callback()(lambda: None)
+    eval_cmd.register(app)
+    out = tmp_path / "ev"
+    res = CliRunner().invoke(app, ["eval", str(ckpt), "--tasks", "move-ego-0-0,t_pose,stand", "--episodes", "1",
+                                   "--steps", "4", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    saved = json.loads((out / "results.json").read_text())
+    assert set(saved) >= {"reward", "goal", "tracking", "summary"}
+    assert saved["tracking"]["stand"]["frames"] == 120

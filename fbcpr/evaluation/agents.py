@@ -1,11 +1,11 @@
 """What the benchmark evaluates: any object with `act` plus the three prompt functions.
 
-Built in: the floor baselines RandomAgent and ZeroAgent (they ignore z), and BFMAgent, which adapts a loaded
-`fbcpr.BFM` through its prompt layer. Later baselines plug in by offering the same methods.
+Built in: the floor baselines RandomAgent and ZeroAgent (they ignore z). A loaded `fbcpr.BFM` is an Agent as
+it is. Later baselines plug in by offering the same methods.
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -78,37 +78,12 @@ class ZeroAgent(_Floor):
         return np.zeros((n, NU), np.float32)
 
 
-class BFMAgent:
-    """A loaded `fbcpr.BFM`: act with the policy, prompts through `fbcpr.prompt.Prompt`."""
-
-    name = "fbcpr"
-
-    def __init__(self, bfm: Any) -> None:
-        from fbcpr.prompt import Prompt
-
-        self.bfm = bfm
-        self.prompt = Prompt(bfm)
-        self.z_dim = int(bfm.z_dim if hasattr(bfm, "z_dim") else bfm.model.cfg.z_dim)
-
-    def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> np.ndarray:
-        return np.asarray(self.bfm.act(obs, z, mean=mean))
-
-    def reward_z(self, reward: str | Callable[..., np.ndarray]) -> np.ndarray:
-        return self.prompt.reward(reward)
-
-    def goal_z(self, goal_obs: np.ndarray) -> np.ndarray:
-        return self.prompt.goal(_check_obs(goal_obs, "goal_z"))
-
-    def track_z(self, obs_seq: np.ndarray) -> np.ndarray:
-        return self.prompt.track(np.asarray(obs_seq))
-
-
 def make_agent(spec: str, seed: int = 0) -> Agent:
     """`random`, `zero`, or a checkpoint path / hub id loaded with `fbcpr.BFM.load`."""
     if spec == "random":
         return RandomAgent(seed)
     if spec == "zero":
         return ZeroAgent()
-    from fbcpr import BFM  # lazy: the floor baselines work without the model code
+    from fbcpr import BFM  # lazy: the floor baselines work without torch and the model code
 
-    return BFMAgent(BFM.load(spec))
+    return BFM.load(spec)

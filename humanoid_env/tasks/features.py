@@ -10,7 +10,7 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from humanoid_env.model import BODY_NAMES, load_model
-from humanoid_env.observation import BODY_ANGVEL, BODY_LINVEL, BODY_POS, BODY_ROT, N_BODIES, OBS_DIM
+from humanoid_env.observation import BODY_ANGVEL, BODY_LINVEL, BODY_POS, BODY_ROT, OBS_DIM
 
 _BODY = {name: i for i, name in enumerate(BODY_NAMES)}
 
@@ -20,6 +20,12 @@ def body_mass_weights() -> np.ndarray:
     """(24,) body masses divided by the total mass, for centre-of-mass velocities."""
     mass = np.asarray(load_model().body_mass[1:], dtype=np.float64)
     return (mass / mass.sum()).astype(np.float32)
+
+
+@lru_cache(maxsize=1)
+def _com_matrix() -> np.ndarray:
+    """(72, 3) map from the stacked body velocities to their mass-weighted mean (one BLAS call)."""
+    return np.kron(body_mass_weights()[:, None], np.eye(3, dtype=np.float32))
 
 
 def as_obs_batch(obs: np.ndarray, who: str = "reward") -> np.ndarray:
@@ -86,8 +92,7 @@ class Features:
     def com_vel(self) -> np.ndarray:
         """(N, 3) mass-weighted mean of the body-origin velocities: the centre-of-mass velocity up to small
         rotational terms, in the heading frame."""
-        vel = self.obs[:, BODY_LINVEL].reshape(-1, N_BODIES, 3)
-        return np.einsum("nbk,b->nk", vel, body_mass_weights())
+        return self.obs[:, BODY_LINVEL] @ _com_matrix().astype(self.obs.dtype, copy=False)
 
     @cached_property
     def com_speed_xy(self) -> np.ndarray:

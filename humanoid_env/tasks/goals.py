@@ -41,13 +41,15 @@ def _merge(*parts: dict[str, float]) -> dict[str, float]:
     return out
 
 
-# Reusable limb settings (degrees). Left arm x>0 raises it, z<0 swings it forward; the right arm mirrors.
+# Reusable limb settings (degrees). Left arm: x>0 raises it, z<0 swings it forward, y twists it so that elbow z
+# bends the forearm up (y<0) or down (y>0). The right arm mirrors: x and z angles change sign, y angles do not.
 ARMS_DOWN = {"L_Shoulder_x": -75, "R_Shoulder_x": 75}
 ARMS_LOW45 = {"L_Shoulder_x": -45, "R_Shoulder_x": 45}
 ARMS_UP = {"L_Shoulder_x": 85, "R_Shoulder_x": -85}
 ARMS_FORWARD = {"L_Shoulder_z": -90, "R_Shoulder_z": 90}
+ARMS_REACH = {"L_Shoulder_x": -45, "R_Shoulder_x": 45, "L_Shoulder_z": -60, "R_Shoulder_z": 60}
 L_FOREARM_UP = {"L_Shoulder_y": -90, "L_Elbow_z": -90}
-R_FOREARM_UP = {"R_Shoulder_y": 90, "R_Elbow_z": 90}
+R_FOREARM_UP = {"R_Shoulder_y": -90, "R_Elbow_z": 90}
 
 
 def _squat(thigh: float, shank: float, lean: float) -> dict[str, float]:
@@ -75,13 +77,13 @@ GOALS: dict[str, GoalPose] = {
     "right_hand_wave": Stand(_merge({"L_Shoulder_x": -75}, R_FOREARM_UP)),
     "left_hand_wave": Stand(_merge({"R_Shoulder_x": 75}, L_FOREARM_UP)),
     "hands_up": Stand(_merge(L_FOREARM_UP, R_FOREARM_UP)),
-    "egyptian": Stand(_merge(L_FOREARM_UP, {"R_Shoulder_y": -90, "R_Elbow_z": 90})),
-    "scratching_head": Stand(_merge({"L_Shoulder_x": -75},
-                                       {"R_Shoulder_x": -40, "R_Shoulder_y": 90, "R_Elbow_z": 130})),
+    "egyptian": Stand(_merge(L_FOREARM_UP, {"R_Shoulder_y": 90, "R_Elbow_z": 90})),  # left forearm up, right down
+    "scratching_head": Stand(_merge({"L_Shoulder_x": -75}, {"R_Shoulder_x": -70, "R_Shoulder_y": -75, "R_Shoulder_z": -30,
+                                                           "R_Elbow_z": 120})),
     "point_forward": Stand({"L_Shoulder_x": -75, "R_Shoulder_z": 90}),
     "arms_forward_down": Stand({"L_Shoulder_x": -45, "R_Shoulder_x": 45, "L_Shoulder_z": -90, "R_Shoulder_z": 90}),
-    "hands_on_hips": Stand({"L_Shoulder_x": -60, "R_Shoulder_x": 60, "L_Shoulder_y": 60, "R_Shoulder_y": -60,
-                                "L_Elbow_z": -90, "R_Elbow_z": 90}),
+    "hands_on_hips": Stand({"L_Shoulder_x": -30, "L_Shoulder_y": 30, "L_Shoulder_z": -15, "L_Elbow_y": 60, "L_Elbow_z": -90,
+                            "R_Shoulder_x": 30, "R_Shoulder_y": 30, "R_Shoulder_z": 15, "R_Elbow_y": 60, "R_Elbow_z": 90}),
     # standing, trunk and leg variations
     "bow": Stand(_merge(ARMS_DOWN, {"Torso_y": 15, "Spine_y": 15, "Chest_y": 15}), com_ahead=-0.02),
     "side_bend_left": Stand(_merge(ARMS_DOWN, {"Torso_x": -10, "Spine_x": -10, "Chest_x": -10})),
@@ -92,15 +94,16 @@ GOALS: dict[str, GoalPose] = {
     "crouch_high": Stand(_merge(ARMS_FORWARD, _squat(45, 20, 15)), pitch=15),
     "crouch_medium": Stand(_merge(ARMS_FORWARD, _squat(65, 25, 25)), pitch=25),
     "crouch_low": Stand(_merge(ARMS_FORWARD, _squat(85, 30, 40)), pitch=40, com_ahead=0.06),
-    "kneel_left": GoalPose(_merge(ARMS_DOWN, {"L_Hip_y": 0, "L_Knee_y": 90, "L_Ankle_y": 30,
-                                              "R_Hip_y": -90, "R_Knee_y": 90})),
-    "kneel_right": GoalPose(_merge(ARMS_DOWN, {"R_Hip_y": 0, "R_Knee_y": 90, "R_Ankle_y": 30,
-                                               "L_Hip_y": -90, "L_Knee_y": 90})),
+    "kneel_left": GoalPose(_merge(ARMS_DOWN, {"L_Hip_y": 0, "L_Knee_y": 90, "L_Ankle_y": 55,
+                                              "R_Hip_y": -80, "R_Knee_y": 105, "R_Ankle_y": -15}), pitch=-10),
+    "kneel_right": GoalPose(_merge(ARMS_DOWN, {"R_Hip_y": 0, "R_Knee_y": 90, "R_Ankle_y": 55,
+                                               "L_Hip_y": -80, "L_Knee_y": 105, "L_Ankle_y": -15}), pitch=-10),
     "kneel_both": GoalPose(_merge(ARMS_DOWN, {"L_Knee_y": 90, "R_Knee_y": 90, "L_Ankle_y": 50, "R_Ankle_y": 50})),
     # sitting and lying on the floor
-    "sit_on_ground": GoalPose(_merge(ARMS_DOWN, {"L_Hip_y": -90, "R_Hip_y": -90, "Torso_y": 10})),
-    "sit_straddle": GoalPose(_merge(ARMS_DOWN, {"L_Hip_y": -85, "R_Hip_y": -85, "L_Hip_x": 30, "R_Hip_x": -30,
-                                                  "Torso_y": 15, "Spine_y": 10})),
+    "sit_on_ground": GoalPose(_merge(ARMS_REACH, {"L_Hip_y": -95, "R_Hip_y": -95, "Torso_y": 20, "Spine_y": 20,
+                                                  "Chest_y": 10})),
+    "sit_straddle": GoalPose(_merge(ARMS_FORWARD, {"L_Hip_y": -95, "R_Hip_y": -95, "L_Hip_x": 20, "R_Hip_x": -20,
+                                                   "Torso_y": 20, "Spine_y": 20, "Chest_y": 10})),
     "lie_back": GoalPose(ARMS_LOW45, pitch=-90),
     "lie_back_arms_up": GoalPose(ARMS_UP, pitch=-90),
     "lie_front": GoalPose(_merge(ARMS_LOW45, {"L_Ankle_y": 55, "R_Ankle_y": 55}), pitch=88),
