@@ -1,0 +1,187 @@
+"""BVH (CMU-style hierarchy) -> keypoints for retargeting.
+
+Joint rotations follow each joint's CHANNELS order as intrinsic rotations in degrees; a joint with position
+channels uses them as its translation, otherwise its OFFSET. BVH files are y up by convention (`up_axis="y"`);
+units do not matter because the retargeter rescales by leg length. Keypoints are found by joint name (CMU names
+first, then common alternatives); rest frames are unknown, so orientations are derived from the keypoints.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from motions.retarget import SourceMotion
+
+#: keypoint -> candidate joint names (lower case, tried in order).
+NAMES = {
+    "l_hip": ("leftupleg", "lefthip", "lhip", "l_hip", "leftthigh", "lthigh"),
+    "l_knee": ("leftleg", "leftknee", "lknee", "l_knee", "leftshin", "lshin", "leftlowerleg"),
+    "l_ankle": ("leftfoot", "leftankle", "lankle", "l_ankle", "lfoot"),
+    "l_toe": ("lefttoebase", "lefttoe", "ltoe", "l_toe", "lefttoes"),
+    "neck": ("neck", "neck1", "lowerneck"),
+    "head": ("head",),
+    "l_shoulder": ("leftarm", "leftupperarm", "lshldr", "leftshoulder", "l_shoulder"),
+    "l_elbow": ("leftforearm", "leftelbow", "leftlowerarm", "lforearm", "l_elbow"),
+    "l_wrist": ("lefthand", "leftwrist", "lhand", "l_wrist"),
+}
+for _k, _v in list(NAMES.items()):
+    if _k.startswith("l_"):
+        NAMES["r_" + _k[2:]] = tuple(n.replace("left", "right").replace("l_", "r_") if "left" in n or n.startswith("l_")
+                                     else "r" + n[1:] for n in _v)
+Y_UP_TO_Z_UP = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+
+
+class BvhFormatError(ValueError):
+    """A BVH file that cannot be read; the message names the file and the problem."""
+
+
+@dataclass
+class Joint:
+    name: str
+    parent: int
+    offset: np.ndarray
+    channels: list[str] = field(default_factory=list)
+    end_site: bool = False
+
+
+def parse_bvh(text: str, where: str = "BVH") -> tuple[list[Joint], np.ndarray, float]:
+    """(joints in file order, motion values (T, n_channels), frame time in seconds)."""
+    tokens = text.split()
+    pos = 0
+
+    def take() -> str:
+        nonlocal pos
+        if pos >= len(tokens):
+            raise BvhFormatError(f"{where}: file ends inside the hierarchy")
+        pos += 1
+        return tokens[pos - 1]
+
+    def number() -> float:
+        tok = take()
+        try:
+            return float(tok)
+        except ValueError:
+            raise BvhFormatError(f"{where}: expected a number, got {tok!r}") from None
+
+    if not tokens or tokens[0] != "HIERARCHY":
+        raise BvhFormatError(f"{where}: does not start with HIERARCHY")
+    take()
+    joints: list[Joint] = []
+
+    def parse_joint(parent: int, end_site: bool) -> None:
+        name = "End Site" if end_site else take()
+        if end_site and take() != "Site":
+            raise BvhFormatError(f"{where}: malformed End Site")
+        if take() != "{":
+            raise BvhFormatError(f"{where}: expected '{{' after joint {name}")
+        if take() != "OFFSET":
+            raise BvhFormatError(f"{where}: joint {name} lacks OFFSET")
+        joint = Joint(name, parent, np.array([number(), number(), number()]), end_site=end_site)
+        joints.append(joint)
+        me = len(joints) - 1
+        while True:
+            tok = take()
+            if tok == "}":
+                return
+            if tok == "CHANNELS" and not end_site:
+                count = int(number())
+                joint.channels = [take() for _ in range(count)]
+                bad = [c for c in joint.channels if c[1:] not in ("position", "rotation") or c[0] not in "XYZ"]
+                if bad:
+                    raise BvhFormatError(f"{where}: joint {name} has unknown channels {bad}")
+            elif tok == "JOINT" and not end_site:
+                parse_joint(me, False)
+            elif tok == "End" and not end_site:
+                parse_joint(me, True)
+            else:
+                raise BvhFormatError(f"{where}: unexpected {tok!r} in joint {name}")
+
+    if take() != "ROOT":
+        raise BvhFormatError(f"{where}: HIERARCHY must begin with ROOT")
+    parse_joint(-1, False)
+    if take() != "MOTION" or take() != "Frames:":
+        raise BvhFormatError(f"{where}: expected 'MOTION' and 'Frames:' after the hierarchy")
+    n_frames = int(number())
+    if take() != "Frame" or take() != "Time:":
+        raise BvhFormatError(f"{where}: expected 'Frame Time:'")
+    frame_time = number()
+    if not frame_time > 0:
+        raise BvhFormatError(f"{where}: frame time must be positive, got {frame_time}")
+    n_channels = sum(len(j.channels) for j in joints)
+    rest = tokens[pos:]
+    if len(rest) != n_frames * n_channels:
+        raise BvhFormatError(f"{where}: {n_frames} frames x {n_channels} channels need {n_frames * n_channels} "
+                             f"values, found {len(rest)}")
+    try:
+        values = np.array(rest, dtype=np.float64).reshape(n_frames, n_channels)
+    except ValueError:
+        raise BvhFormatError(f"{where}: motion data contains non-numeric values") from None
+    if not np.all(np.isfinite(values)):
+        raise BvhFormatError(f"{where}: motion data contains NaN or inf")
+    if n_frames < 2:
+        raise BvhFormatError(f"{where}: needs at least 2 frames, got {n_frames}")
+    return joints, values, frame_time
+
+
+def forward_kinematics(joints: list[Joint], values: np.ndarray) -> np.ndarray:
+    """(T, n_joints, 3) world positions in the file's own frame and units."""
+    n = values.shape[0]
+    pos = np.zeros((n, len(joints), 3))
+    rots: list[Rotation] = []
+    col = 0
+    for i, j in enumerate(joints):
+        trans = np.repeat(j.offset[None], n, axis=0)
+        rot_axes, rot_cols = "", []
+        for c in j.channels:
+            if c.endswith("position"):
+                trans[:, "XYZ".index(c[0])] = values[:, col]
+            else:
+                rot_axes += c[0]
+                rot_cols.append(col)
+            col += 1
+        local = Rotation.from_euler(rot_axes, values[:, rot_cols], degrees=True) if rot_axes else Rotation.identity(n)
+        if j.parent < 0:
+            pos[:, i] = trans
+            rots.append(local)
+        else:
+            pos[:, i] = pos[:, j.parent] + rots[j.parent].apply(trans)
+            rots.append(rots[j.parent] * local)
+    return pos
+
+
+def _find(joints: list[Joint], key: str) -> int | None:
+    names = [j.name.split(":")[-1].lower() for j in joints]
+    for cand in NAMES[key]:
+        if cand in names:
+            return names.index(cand)
+    return None
+
+
+def load_bvh(path: str | Path, up_axis: str = "y") -> SourceMotion:
+    """Keypoints of a BVH clip in our z-up world."""
+    path = Path(path)
+    if up_axis not in ("y", "z"):
+        raise ValueError(f"up_axis must be 'y' or 'z', got {up_axis!r}")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise BvhFormatError(f"{path}: cannot read ({err})") from None
+    joints, values, frame_time = parse_bvh(text, str(path))
+    world = forward_kinematics(joints, values)
+    if up_axis == "y":
+        world = world @ Y_UP_TO_Z_UP.T
+    idx: dict[str, int] = {}
+    for key in NAMES:
+        found = _find(joints, key)
+        if found is None and key in ("l_toe", "r_toe", "head"):  # fall back to the End Site below foot / neck
+            parent = idx.get(key[:2] + "ankle" if key != "head" else "neck")
+            found = next((i for i, j in enumerate(joints) if j.parent == parent and j.end_site), None)
+        if found is None:
+            raise BvhFormatError(f"{path}: no joint for {key} (tried {', '.join(NAMES[key])})")
+        idx[key] = found
+    positions = {k: world[:, i] for k, i in idx.items()}
+    return SourceMotion(name=path.stem, positions=positions, times=np.arange(values.shape[0]) * frame_time,
+                        source=f"BVH {path.name}", license="see the license of the source dataset")
