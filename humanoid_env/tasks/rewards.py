@@ -28,7 +28,6 @@ class RewardFn(Protocol):
 STAND_HEAD = 1.4          # head height that counts as standing
 LOW_PELVIS = (0.45, 0.7)  # pelvis band for low locomotion
 ARM_BANDS = {"l": (0.0, 1.0, 0.2), "m": (1.3, 1.55, 0.1), "h": (1.8, np.inf, 0.2)}  # wrist z (lo, hi, margin)
-ARM_WORDS = {"l": "low", "m": "medium", "h": "high"}
 
 
 def _tol(x: np.ndarray, lo: float, hi: float, margin: float, sigmoid: str = "linear", at_margin: float = 0.0) -> np.ndarray:
