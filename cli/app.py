@@ -7,6 +7,7 @@ from fbcpr.cli import env_cmd
 from fbcpr.cli import eval_cmd
 from fbcpr.cli import common, prompt_cmd
 from fbcpr.cli import train_cmd
+from fbcpr.cli import motions_cmd
 
 app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid.", no_args_is_help=True)
 
@@ -16,6 +17,7 @@ eval_cmd.register(app)
 common.register(app)
 prompt_cmd.register(app)
 train_cmd.register(app)
+motions_cmd.register(app)
 
 
 def main() -> None:

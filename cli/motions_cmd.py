@@ -1,0 +1,156 @@
+"""`fbcpr motions ...`: import motion files into clips, list a clip folder, render a clip to video."""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import typer
+from rich.table import Table
+
+from fbcpr.cli.common import cli_errors, console, err_console, progress
+
+motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH), inspect, render.", no_args_is_help=True)
+
+
+def _expand(sources: list[Path]) -> list[Path]:
+    """Files as given; folders expand to the files inside them (recursively, sorted)."""
+    out: list[Path] = []
+    for src in sources:
+        if src.is_dir():
+            out.extend(p for p in sorted(src.rglob("*")) if p.is_file() and not p.name.startswith("."))
+        else:
+            out.append(src)
+    return out
+
+
+def _write_json_atomic(data: dict, path: Path) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w") as fh:
+        json.dump(data, fh, indent=2)
+    os.replace(tmp, path)
+
+
+@motions_app.command("import")
+@cli_errors
+def import_cmd(
+    sources: list[Path] = typer.Argument(..., help="Motion files or folders (AMASS .npz, DeepMimic JSON, BVH)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for the clip .npz files (created if missing)."),
+    up_axis: str = typer.Option(None, "--up-axis", help="Override the source up axis: y or z (AMASS: z, BVH: y)."),
+    loop_seconds: float = typer.Option(0.0, "--loop-seconds", help="Repeat cyclic clips until they last this long."),
+    no_cache: bool = typer.Option(False, "--no-cache", help="Ignore the conversion cache (~/.cache/fbcpr)."),
+) -> None:
+    """Convert motion files to 30 Hz clips; a failing file is reported and skipped, and writes are atomic."""
+    from motions.clip import save_clip
+    from motions.importers import import_file
+
+    if up_axis not in (None, "y", "z"):
+        raise typer.BadParameter("--up-axis must be y or z")
+    files = _expand(sources)
+    if not files:
+        raise ValueError("no input files found")
+    out.mkdir(parents=True, exist_ok=True)
+    done: list[dict] = []
+    failed: list[dict] = []
+    used: set[str] = set()
+    with progress() as bar:
+        task = bar.add_task("importing", total=len(files))
+        for path in files:
+            bar.update(task, description=f"importing {path.name}")
+            try:
+                clip, report = import_file(path, up_axis=up_axis, loop_seconds=loop_seconds, use_cache=not no_cache)
+                stem = clip.name
+                k = 1
+                while stem in used:  # two sources with one name in a single run keep both
+                    k += 1
+                    stem = f"{clip.name}_{k}"
+                used.add(stem)
+                save_clip(clip, out / f"{stem}.npz")
+                done.append({"file": str(path), "clip": f"{stem}.npz", "frames": clip.n_frames,
+                             "seconds": round(clip.seconds, 3), "clipped_joint_frames": report.clipped_total,
+                             "max_foot_penetration_m": round(report.max_penetration, 4),
+                             "max_contact_gap_m": round(report.max_contact_gap, 4)})
+            except Exception as err:  # one bad file must not stop the others
+                failed.append({"file": str(path), "reason": str(err).strip().splitlines()[0] if str(err) else type(err).__name__})
+            bar.advance(task)
+    seconds = sum(d["seconds"] for d in done)
+    _write_json_atomic({"clips": done, "failures": failed, "total_seconds": round(seconds, 3)}, out / "import_summary.json")
+    table = Table(title=f"Imported {len(done)} clip(s), {seconds:.1f} s of motion -> {out}")
+    for col in ("clip", "frames", "seconds", "clipped", "penetration (m)"):
+        table.add_column(col, justify="right" if col != "clip" else "left")
+    for d in done:
+        table.add_row(d["clip"], str(d["frames"]), f"{d['seconds']:.1f}", str(d["clipped_joint_frames"]),
+                      f"{d['max_foot_penetration_m']:.3f}")
+    console.print(table)
+    for f in failed:
+        err_console.print(f"[red]failed[/] {f['file']}: {f['reason']}", highlight=False)
+    if failed:
+        err_console.print(f"{len(failed)} file(s) failed; see {out / 'import_summary.json'}")
+        raise typer.Exit(1)
+
+
+@motions_app.command("info")
+@cli_errors
+def info_cmd(folder: Path = typer.Argument(..., help="Folder of clip .npz files.")) -> None:
+    """Table of the clips in a folder (unreadable files are listed with the reason)."""
+    from motions.clip import ClipFormatError, load_clip
+
+    if not folder.is_dir():
+        raise ValueError(f"{folder} is not a folder")
+    paths = sorted(folder.glob("*.npz"))
+    if not paths:
+        raise ValueError(f"no .npz clips in {folder}")
+    table = Table(title=str(folder))
+    for col in ("clip", "frames", "seconds", "pelvis z (m)", "source", "license"):
+        table.add_column(col, justify="right" if col in ("frames", "seconds", "pelvis z (m)") else "left")
+    total, count = 0.0, 0
+    for p in paths:
+        try:
+            c = load_clip(p)
+        except ClipFormatError as err:
+            table.add_row(p.name, "-", "-", "-", f"[red]invalid: {err}[/]", "")
+            continue
+        total += c.seconds
+        count += 1
+        z = c.qpos[:, 2]
+        table.add_row(c.name, str(c.n_frames), f"{c.seconds:.1f}", f"{z.min():.2f}-{z.max():.2f}", c.source, c.license)
+    table.caption = f"{count} clip(s), {total:.1f} s"
+    console.print(table)
+
+
+@motions_app.command("render")
+@cli_errors
+def render_cmd(
+    clip_path: Path = typer.Argument(..., help="A clip .npz file."),
+    out: Path = typer.Argument(..., help="Output video, e.g. out.mp4."),
+    width: int = typer.Option(480, help="Frame width in pixels."),
+    height: int = typer.Option(360, help="Frame height in pixels."),
+) -> None:
+    """Play a clip back kinematically (no physics) from the tracking camera and write a video."""
+    import mujoco
+
+    from humanoid_env.model import load_model
+    from humanoid_env.render import TrackRenderer, write_video
+    from motions.clip import load_clip
+
+    clip = load_clip(clip_path)
+    model = load_model()
+    data = mujoco.MjData(model)
+    renderer = TrackRenderer(model, height=height, width=width)
+    frames = []
+    try:
+        with progress() as bar:
+            task = bar.add_task(f"rendering {clip.name}", total=clip.n_frames)
+            for q in clip.qpos:
+                data.qpos[:] = q
+                frames.append(renderer.render(data))
+                bar.advance(task)
+    finally:
+        renderer.close()
+    write_video(frames, out, fps=clip.fps)
+    console.print(f"wrote {out} ({clip.n_frames} frames, {clip.seconds:.1f} s)")
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(motions_app, name="motions")
