@@ -108,6 +108,10 @@ def test_bad_arguments(library):
         evaluate(ZeroAgent(), "reward", tasks=["not-a-task"], show_progress=False)
     with pytest.raises(ValueError, match="motions"):
         evaluate(ZeroAgent(), "tracking")
+    with pytest.raises(ValueError, match="'t_pose' is a goal task"):
+        evaluate(ZeroAgent(), "reward", tasks=["t_pose"], show_progress=False)
+    with pytest.raises(ValueError, match="neither a goal pose, a clip"):
+        evaluate(ZeroAgent(), "all", tasks=["stand_still"], motions=library, show_progress=False)
     with pytest.raises(ValueError, match="episodes"):
         evaluate(ZeroAgent(), "reward", episodes=0)
 
@@ -125,7 +129,7 @@ def test_cli_eval_command(tmp_path):
     assert res.exit_code == 0, res.output
     assert "move-ego-0-0" in res.output and (out / "results.json").exists()
     bad = runner.invoke(app, ["eval", "random", "--tasks", "fly-away", "--out", str(tmp_path / "x")])
-    assert bad.exit_code == 1 and "unknown reward" in bad.output and "Traceback" not in bad.output
+    assert bad.exit_code == 1 and "neither a goal pose" in bad.output and "Traceback" not in bad.output
     assert make_agent("random").name == "random"
 
 

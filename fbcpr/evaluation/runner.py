@@ -151,7 +151,7 @@ def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch
     return out
 
 
-def _split_names(names: Iterable[str], motions: Any) -> dict[str, list[str]]:
+def _split_names(names: Iterable[str], motions: Any, wanted: Sequence[str]) -> dict[str, list[str]]:
     """Sort user-given names into the suite they belong to: goal poses, clip names, else reward tasks."""
     from humanoid_env.tasks import GOALS, get_reward
 
@@ -159,12 +159,18 @@ def _split_names(names: Iterable[str], motions: Any) -> dict[str, list[str]]:
     groups: dict[str, list[str]] = {s: [] for s in SUITES}
     for n in names:
         if n in GOALS:
-            groups["goal"].append(n)
+            suite = "goal"
         elif n in clips:
-            groups["tracking"].append(n)
+            suite = "tracking"
         else:
-            get_reward(n)  # raises a ValueError listing the families for a bad name
-            groups["reward"].append(n)
+            try:
+                get_reward(n)
+            except ValueError as err:
+                raise ValueError(f"{n!r} is neither a goal pose, a clip of the motions nor a reward task ({err})") from None
+            suite = "reward"
+        if suite not in wanted:
+            raise ValueError(f"{n!r} is a {suite} task, but the suite being run is {', '.join(wanted)}")
+        groups[suite].append(n)
     return groups
 
 
@@ -187,7 +193,7 @@ def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = Non
     wanted = SUITES if suite == "all" else (suite,)
     if "tracking" in wanted and motions is None:
         raise ValueError("the tracking suite needs motions (a MotionLibrary)")
-    chosen = _split_names(tasks, motions) if tasks else {"reward": list(TASKS), "goal": list(GOALS),
+    chosen = _split_names(tasks, motions, wanted) if tasks else {"reward": list(TASKS), "goal": list(GOALS),
                                                           "tracking": list(motions.names) if motions is not None else []}
     results: dict[str, Any] = {"agent": agent_name or getattr(agent, "name", type(agent).__name__),
                                "episodes": episodes, "steps": steps, "fall_prob": fall_prob, "seed": seed}
