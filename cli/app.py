@@ -5,7 +5,7 @@ import typer
 
 from fbcpr.cli import env_cmd
 from fbcpr.cli import eval_cmd
-from fbcpr.cli import common, prompt_cmd
+from fbcpr.cli import common, demo_cmd, prompt_cmd
 from fbcpr.cli import train_cmd
 from fbcpr.cli import motions_cmd
 
@@ -16,6 +16,7 @@ env_cmd.register(app)
 eval_cmd.register(app)
 common.register(app)
 prompt_cmd.register(app)
+demo_cmd.register(app)
 train_cmd.register(app)
 motions_cmd.register(app)
 

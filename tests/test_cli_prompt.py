@@ -1,6 +1,7 @@
 """`fbcpr prompt`, `fbcpr track`, `fbcpr timeline` end to end on a tiny checkpoint made here."""
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -144,3 +145,28 @@ def test_cli_missing_repo_offline(tmp_path, monkeypatch):
     res = run("prompt", "org/not-cached", "--goal", "t_pose")
     assert res.exit_code == 1
     assert "not in the local cache" in res.output and "Traceback" not in res.output
+
+
+def test_demo_trains_prompts_and_summarizes(tmp_path):
+    """`fbcpr demo` end to end with a tiny humanoid config and a step budget (the real demo uses minutes)."""
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text("""
+model: {preset: tiny}
+agent: {batch_size: 32}
+env: {name: humanoid, motions: synthetic, max_episode_steps: 50}
+train: {total_env_steps: 100000, num_envs: 4, warmup_steps: 100, rollout_steps: 40, updates_per_rollout: 1,
+        buffer_capacity: 2000, priority_every: 0, checkpoint_every: 0, log_every: 100, reward_buffer_size: 300,
+        torch_threads: 1}
+""")
+    out = tmp_path / "demo"
+    res = run("demo", "--config", cfg, "--steps", "160", "--out", out, "--episodes", "1", "--eval-steps", "5",
+              "--no-video")
+    assert res.exit_code == 0, res.output
+    summary = json.loads((out / "demo_summary.json").read_text())
+    assert summary["env_steps"] == 160 and summary["updates"] > 0
+    assert set(summary["scores"]) == {"FB-CPR", "zero action", "random action"}
+    assert [s["metric"] for s in summary["scores"]["FB-CPR"]] == ["return", "proximity", "success", "EMD", "success"]
+    assert 0 <= summary["beats_floors"] <= 5 and "30M env steps" in summary["verdict"]
+    assert "zero-shot prompts" in res.output
+    again = run("demo", "--config", cfg, "--steps", "10", "--out", out)  # never overwrites a finished run
+    assert again.exit_code == 1 and "already holds a run" in again.output
