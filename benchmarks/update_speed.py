@@ -1,0 +1,104 @@
+"""Milliseconds per full FB-CPR update (all five networks, targets, Polyak) at several sizes.
+
+    python benchmarks/update_speed.py [--threads 2] [--sizes tiny small paper-S] [--gpu] [--compile]
+
+Humanoid dimensions (obs 358, action 69). Each row shows the measured update next to a reference taken in
+the same run: square float32 matmuls of the same total FLOPs (counted with torch's FlopCounterMode on one
+update), i.e. what the update would cost if all its math ran at dense-GEMM speed.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from fbcpr.agent import FBCPRAgent
+from fbcpr.config import config_from_dict
+
+SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}
+OBS, ACT = 358, 69
+
+
+def make(preset: str, device: str, compile_: bool) -> tuple[FBCPRAgent, dict, torch.Tensor]:
+    n = SIZES[preset]
+    cfg = config_from_dict({"model": {"preset": preset, "obs_dim": OBS, "action_dim": ACT},
+                            "agent": {"batch_size": n, "compile": compile_}})
+    agent = FBCPRAgent(cfg.model, cfg.agent, device=device)
+    g = torch.Generator().manual_seed(0)
+    batch = {"obs": torch.randn(n, OBS, generator=g), "action": torch.rand(n, ACT, generator=g) * 2 - 1,
+             "next_obs": torch.randn(n, OBS, generator=g), "z": agent.model.sample_z(n).cpu(),
+             "terminated": torch.zeros(n)}
+    return agent, batch, torch.randn(n // 8, 8, OBS, generator=g)
+
+
+def sync(device: str) -> None:
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+
+
+def time_update(agent: FBCPRAgent, batch: dict, windows: torch.Tensor, device: str, reps: int) -> float:
+    batch = {k: v.to(device) for k, v in batch.items()}
+    windows = windows.to(device)
+    for _ in range(2):
+        agent.update(batch, windows)
+    sync(device)
+    best = float("inf")
+    for _ in range(reps):
+        t = time.perf_counter()
+        agent.update(batch, windows)
+        sync(device)
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def count_flops(preset: str) -> float:
+    agent, batch, windows = make(preset, "cpu", False)
+    with FlopCounterMode(display=False) as fc:
+        agent.update(batch, windows)
+    return float(fc.get_total_flops())
+
+
+def matmul_reference(flops: float, device: str, reps: int) -> float:
+    """Seconds for square 1024 float32 matmuls totalling `flops`."""
+    k = 1024
+    a, b = torch.randn(k, k, device=device), torch.randn(k, k, device=device)
+    count = max(1, round(flops / (2 * k ** 3)))
+    for _ in range(3):
+        a @ b
+    sync(device)
+    best = float("inf")
+    for _ in range(reps):
+        t = time.perf_counter()
+        for _ in range(count):
+            a @ b
+        sync(device)
+        best = min(best, time.perf_counter() - t)
+    return best * flops / (count * 2 * k ** 3)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--sizes", nargs="+", default=["tiny", "small", "paper-S"])
+    ap.add_argument("--gpu", action="store_true", help="also time on CUDA")
+    ap.add_argument("--compile", action="store_true", help="torch.compile the loss computation (GPU rows)")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    devices = ["cpu"] + (["cuda"] if args.gpu and torch.cuda.is_available() else [])
+    print(f"torch {torch.__version__}, {args.threads} CPU threads" + (f", {torch.cuda.get_device_name()}" if "cuda" in devices else ""))
+    print(f"{'size':8s} {'device':6s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} {'ratio':>6s}")
+    for preset in args.sizes:
+        flops = count_flops(preset)
+        for dev in devices:
+            reps = {"tiny": 20, "small": 10}.get(preset, 3) if dev == "cpu" else 20
+            agent, batch, windows = make(preset, dev, args.compile and dev != "cpu")
+            t = time_update(agent, batch, windows, dev, reps)
+            ref = matmul_reference(flops, dev, 3)
+            print(f"{preset:8s} {dev:6s} {SIZES[preset]:5d} {flops / 1e9:7.1f} {t * 1e3:10.1f} {ref * 1e3:14.1f} {t / ref:6.2f}",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,66 @@
+"""Config: YAML onto typed dataclasses; every bad key or value names itself."""
+from pathlib import Path
+
+import pytest
+
+from fbcpr.config import PRESETS, ConfigError, config_from_dict, dump_config, load_config
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+@pytest.mark.parametrize("data, key", [
+    ({"agent": {"discount_factor": 0.9}}, "agent.discount_factor"),
+    ({"trainer": {}}, "trainer"),
+    ({"agent": {"discount": 1.5}}, "agent.discount"),
+    ({"agent": {"batch_size": "big"}}, "agent.batch_size"),
+    ({"agent": {"batch_size": 100}}, "agent.batch_size"),          # not a multiple of seq_length
+    ({"agent": {"relabel_prob": -0.1}}, "agent.relabel_prob"),
+    ({"agent": {"z_expert": 0.5}}, "agent.z_expert"),              # nu does not sum to 1
+    ({"model": {"preset": "huge"}}, "model.preset"),
+    ({"model": {"hidden_dim": 33}}, "model.hidden_dim"),
+    ({"model": {"z_dim": True}}, "model.z_dim"),
+    ({"env": {"name": "atari"}}, "env.name"),
+    ({"train": {"device": "tpu"}}, "train.device"),
+    ({"train": {"lr": float("nan")}}, "train.lr"),
+    ({"model": [1, 2]}, "model"),
+])
+def test_errors_name_the_key(data, key):
+    with pytest.raises(ConfigError) as e:
+        config_from_dict(data)
+    assert str(e.value).startswith(key)
+
+
+def test_defaults_are_the_paper_values():
+    cfg = config_from_dict({})
+    a, t = cfg.agent, cfg.train
+    assert (a.batch_size, a.seq_length, a.discount, a.tau, a.relabel_prob) == (1024, 8, 0.98, 0.005, 0.8)
+    assert (a.lr_f, a.lr_b, a.lr_actor, a.lr_critic, a.lr_discriminator) == (1e-4, 1e-5, 1e-4, 1e-4, 1e-5)
+    assert (a.ortho_coef, a.fz_coef, a.actor_reg_coef, a.grad_penalty) == (100, 0.1, 0.01, 10)
+    assert (a.fb_pessimism, a.actor_pessimism, a.critic_pessimism) == (0, 0.5, 0.5)
+    assert (a.z_expert, a.z_online, a.z_uniform) == (0.6, 0.2, 0.2)
+    assert (t.num_envs, t.rollout_steps, t.updates_per_rollout, t.warmup_steps, t.buffer_capacity) == (50, 500, 50, 50_000, 5_000_000)
+    assert (t.z_update_every, t.priority_every, cfg.env.fall_prob) == (150, 1_000_000, 0.2)
+    assert cfg.model.z_dim == 256 and cfg.model.hidden_dim == 1024
+
+
+def test_preset_then_overrides_and_roundtrip(tmp_path):
+    cfg = config_from_dict({"model": {"preset": "tiny", "z_dim": 12}, "agent": {"lr_f": 3}})
+    assert cfg.model.z_dim == 12 and cfg.model.hidden_dim == PRESETS["tiny"]["hidden_dim"]
+    assert cfg.agent.lr_f == 3.0 and isinstance(cfg.agent.lr_f, float)
+    p = tmp_path / "c.yaml"
+    p.write_text(dump_config(cfg))
+    assert load_config(p) == cfg
+
+
+@pytest.mark.parametrize("name", ["quickstart", "small", "paper-S", "paper-M", "toy"])
+def test_shipped_configs_load(name):
+    load_config(CONFIGS / f"{name}.yaml")
+
+
+def test_bad_yaml_file(tmp_path):
+    p = tmp_path / "bad.yaml"
+    p.write_text("model: {z_dim: [")
+    with pytest.raises(ConfigError, match="invalid YAML"):
+        load_config(p)
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "missing.yaml")
