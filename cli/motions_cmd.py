@@ -6,6 +6,7 @@ import os
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import typer
 from rich.table import Table
 
@@ -123,31 +124,40 @@ def info_cmd(folder: Path = typer.Argument(..., help="Folder of clip .npz files.
 @cli_errors
 def render_cmd(
     clip_path: Path = typer.Argument(..., help="A clip .npz file."),
-    out: Path = typer.Argument(..., help="Output video, e.g. out.mp4."),
-    width: int = typer.Option(480, help="Frame width in pixels."),
-    height: int = typer.Option(360, help="Frame height in pixels."),
+    out: Path = typer.Argument(..., help="Output video (out.mp4) or, for a .png name, a strip of still frames."),
+    width: int = typer.Option(640, help="Frame width in pixels (a multiple of 16 avoids resizing)."),
+    height: int = typer.Option(480, help="Frame height in pixels."),
+    stills: int = typer.Option(6, help="Number of evenly spaced frames in a .png strip."),
 ) -> None:
-    """Play a clip back kinematically (no physics) from the tracking camera and write a video."""
-    import mujoco
-
-    from humanoid_env.model import load_model
+    """Play a clip back kinematically (no physics) from the tracking camera; write a video or a .png strip."""
+    from humanoid_env.model import load_model  # first: it picks a headless GL backend before mujoco loads
     from humanoid_env.render import TrackRenderer, write_video
+    import mujoco
     from motions.clip import load_clip
 
     clip = load_clip(clip_path)
+    strip = out.suffix.lower() == ".png"
+    rows = np.linspace(0, clip.n_frames - 1, stills).round().astype(int) if strip else np.arange(clip.n_frames)
     model = load_model()
     data = mujoco.MjData(model)
     renderer = TrackRenderer(model, height=height, width=width)
     frames = []
     try:
         with progress() as bar:
-            task = bar.add_task(f"rendering {clip.name}", total=clip.n_frames)
-            for q in clip.qpos:
+            task = bar.add_task(f"rendering {clip.name}", total=len(rows))
+            for q in clip.qpos[rows]:
                 data.qpos[:] = q
                 frames.append(renderer.render(data))
                 bar.advance(task)
     finally:
         renderer.close()
+    if strip:
+        import imageio.v2 as imageio
+
+        out.parent.mkdir(parents=True, exist_ok=True)
+        imageio.imwrite(out, np.concatenate(frames, axis=1))
+        console.print(f"wrote {out} ({len(rows)} frames of {clip.name} at t = {', '.join(f'{r / clip.fps:.1f}' for r in rows)} s)")
+        return
     write_video(frames, out, fps=clip.fps)
     console.print(f"wrote {out} ({clip.n_frames} frames, {clip.seconds:.1f} s)")
 

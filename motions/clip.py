@@ -97,6 +97,9 @@ def save_clip(clip: Clip, path: str | os.PathLike) -> Path:
                 fps=np.int64(clip.fps), name=np.str_(clip.name), source=np.str_(clip.source),
                 license=np.str_(clip.license),
             )
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the clip normal file permissions
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -11,7 +11,7 @@ import numpy as np
 
 from humanoid_env.model import JOINT_NAMES, default_qpos, joint_ranges, load_model
 from motions.clip import FPS, Clip, from_qpos
-from motions.kinematics import foot_geom_ids, geom_bottoms, put_on_floor
+from motions.kinematics import put_on_floor
 
 _IDX = {name: i for i, name in enumerate(JOINT_NAMES)}
 ARMS_DOWN = 1.35  # shoulder angle that brings the arms alongside the body without touching it
@@ -101,14 +101,12 @@ def _gait_angles(q: np.ndarray, phase: np.ndarray, hip_amp: float, knee_amp: flo
     _set(q, "R_Shoulder_z", swing)
 
 
-def _plant_stance_foot(q: np.ndarray) -> np.ndarray:
-    """Move the root horizontally so the lower (stance) foot does not slide, then put the clip on the floor."""
-    model = load_model()
-    q = put_on_floor(model, q)
-    bottoms = geom_bottoms(model, q)[:, foot_geom_ids(model)]
-    left_low = bottoms[:, :2].min(axis=1) <= bottoms[:, 2:].min(axis=1)
+def _plant_stance_foot(q: np.ndarray, left_stance: np.ndarray) -> np.ndarray:
+    """Move the root horizontally so the stance foot does not slide, then put the clip on the floor."""
     import mujoco
 
+    model = load_model()
+    q = put_on_floor(model, q)
     data = mujoco.MjData(model)
     ankle = {s: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"{s}_Ankle") for s in "LR"}
     rel = np.empty((q.shape[0], 2, 2))
@@ -117,7 +115,7 @@ def _plant_stance_foot(q: np.ndarray) -> np.ndarray:
         mujoco.mj_kinematics(model, data)
         rel[t, 0] = data.xpos[ankle["L"], :2] - q[t, :2]
         rel[t, 1] = data.xpos[ankle["R"], :2] - q[t, :2]
-    stance = np.where(left_low, 0, 1)
+    stance = np.where(left_stance, 0, 1)
     root = q[0, :2].copy()
     for t in range(1, q.shape[0]):
         s = stance[t]
@@ -134,7 +132,8 @@ def walk(seconds: float = 8.0, period: float = 1.2) -> Clip:
     _gait_angles(q, phase, hip_amp=0.3, knee_amp=0.6)
     lo, hi = joint_ranges().T
     q[:, 7:] = np.clip(q[:, 7:], lo, hi)
-    return from_qpos(_plant_stance_foot(q), name="walk", source=SOURCE, license=LICENSE, fps=FPS)
+    left_stance = np.cos(phase) < 0  # the left hip extends (foot moves back under the body) half the cycle
+    return from_qpos(_plant_stance_foot(q, left_stance), name="walk", source=SOURCE, license=LICENSE, fps=FPS)
 
 
 def turn(seconds: float = 6.0, angle: float = np.pi / 2, period: float = 1.0) -> Clip:

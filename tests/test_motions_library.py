@@ -1,0 +1,89 @@
+"""Motion library: loading, deterministic split, window and state sampling, EMD-based priorities."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from humanoid_env.model import default_qpos
+from motions.clip import from_qpos, save_clip
+from motions.library import MotionLibrary, emd_bins, priorities_from_emd
+
+
+def _clip(name: str, n: int, speed: float, tag: float = 0.0):
+    q = np.repeat(default_qpos()[None], n, axis=0)
+    q[:, 0] = speed * np.arange(n) / 30.0  # distinct root x per frame identifies the source frame
+    q[:, 1] = tag  # identifies the clip in states
+    q[:, 7 + 40] = 0.01 * np.arange(n) + 0.1 * tag  # a shoulder angle makes every observation distinct
+    return from_qpos(q, name=name, source="test", license="MIT")
+
+
+@pytest.fixture(scope="module")
+def lib():
+    return MotionLibrary([_clip("a", 20, 1.0, 1), _clip("b", 9, 2.0, 2), _clip("c", 40, 3.0, 3), _clip("d", 5, 4.0, 4)])
+
+
+def test_priority_formula_matches_the_paper():
+    emd = np.array([0.1, 0.7, 0.99, 1.0, 2.2, 4.9, 5.0, 9.0])
+    # clip to [0.5, 5], bins of width 0.5 starting at 0.5; EMD >= 5 gets the tenth bin
+    np.testing.assert_array_equal(emd_bins(emd), [0, 0, 0, 1, 3, 8, 9, 9])
+    np.testing.assert_allclose(priorities_from_emd(emd), [1 / 3, 1 / 3, 1 / 3, 1, 1, 1, 1 / 2, 1 / 2])
+    assert emd_bins(np.linspace(0, 10, 1001)).max() == 9  # exactly 10 bins
+
+
+def test_priorities_drive_sampling(lib):
+    lib.set_priorities_from_emd({"a": 0.6, "b": 0.7, "c": 0.8, "d": 4.0})  # a,b,c share a bin; d alone
+    np.testing.assert_allclose(lib.priorities, [1 / 3, 1 / 3, 1 / 3, 1.0])
+    qpos, _ = lib.sample_states(np.random.default_rng(0), 20000)
+    share_d = np.mean(qpos[:, 1] == 4)
+    assert abs(share_d - 0.5) < 0.02  # half of the mass goes to the lone hard motion
+    with pytest.raises(ValueError, match="unknown names \\['zz'\\]"):
+        lib.set_priorities_from_emd({"a": 1, "b": 1, "c": 1, "d": 1, "zz": 1})
+    with pytest.raises(ValueError, match="missing names \\['d'\\]"):
+        lib.set_priorities_from_emd({"a": 1, "b": 1, "c": 1})
+    lib.priorities = np.ones(len(lib))
+
+
+def test_windows_are_consecutive_observations_of_one_clip(lib):
+    rng = np.random.default_rng(1)
+    w = lib.sample_windows(rng, 64, 8)
+    assert w.shape == (64, 8, 358) and w.dtype == np.float32
+    flat = lib._obs
+    for window in w:
+        start = np.flatnonzero(np.all(flat == window[0], axis=1))
+        assert any(np.array_equal(flat[s:s + 8], window) for s in start)
+    # clip d (5 frames) can never host an 8-frame window; clip c can host 33 starts
+    w_long = lib.sample_windows(rng, 200, 30)
+    np.testing.assert_allclose(w_long[:, :, 214], 3.0, atol=1e-4)  # root x velocity of clip c only
+    with pytest.raises(ValueError, match="no clip has 41 frames"):
+        lib.sample_windows(rng, 1, 41)
+
+
+def test_sample_states_returns_clip_frames(lib):
+    qpos, qvel = lib.sample_states(np.random.default_rng(2), 50)
+    assert qpos.shape == (50, 76) and qvel.shape == (50, 75)
+    all_q = np.concatenate([c.qpos for c in lib.clips])
+    assert all(np.any(np.all(all_q == q, axis=1)) for q in qpos)
+
+
+def test_split_is_deterministic_and_disjoint():
+    clips = [_clip(f"m{i:02d}", 3, 1.0) for i in range(40)]
+    train, test = MotionLibrary(clips).split(0.25)
+    train2, test2 = MotionLibrary(clips[::-1]).split(0.25)
+    assert sorted(test.names) == sorted(test2.names) and sorted(train.names) == sorted(train2.names)
+    assert not set(train.names) & set(test.names) and len(train) + len(test) == 40
+    assert 3 <= len(test) <= 18
+
+
+def test_load_folder_and_errors(tmp_path):
+    for c in (_clip("x", 4, 1.0), _clip("y", 6, 1.0)):
+        save_clip(c, tmp_path / f"{c.name}.npz")
+    lib = MotionLibrary.load(tmp_path)
+    assert lib.names == ["x", "y"] and lib.total_seconds == pytest.approx(10 / 30)
+    assert MotionLibrary.load([tmp_path / "y.npz"]).names == ["y"]
+    with pytest.raises(ValueError, match="duplicate clip names \\['x'\\]"):
+        MotionLibrary([lib.clips[0], lib.clips[0]])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="no .npz clips"):
+        MotionLibrary.load(tmp_path / "empty")
+    with pytest.raises(FileNotFoundError, match="not a folder"):
+        MotionLibrary.load(tmp_path / "nope")
