@@ -114,6 +114,7 @@ class HumanoidEnv(gym.Env):
         self._mid, self._half = pd_targets(self.model)
         self._act = np.empty(NU)
         self._obs = np.zeros(OBS_DIM, np.float32)
+        self._good_qpos, self._good_qvel = self.data.qpos.copy(), self.data.qvel.copy()
         self._steps = 0
 
     def _observe(self) -> np.ndarray:
@@ -121,7 +122,10 @@ class HumanoidEnv(gym.Env):
         return assemble(xpos[None], xmat[None], cvel[None], com[None])[0]
 
     def _info(self, diverged: bool) -> dict[str, Any]:
-        return {"qpos": self.data.qpos.copy(), "qvel": self.data.qvel.copy(), "diverged": diverged}
+        if diverged:  # the state of the last good observation, not what MuJoCo reset the data to
+            return {"qpos": self._good_qpos.copy(), "qvel": self._good_qvel.copy(), "diverged": True}
+        self._good_qpos, self._good_qvel = self.data.qpos.copy(), self.data.qvel.copy()
+        return {"qpos": self._good_qpos, "qvel": self._good_qvel, "diverged": False}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)

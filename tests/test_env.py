@@ -104,15 +104,28 @@ def test_same_seed_same_rollout():
     assert np.abs(rollout(3) - rollout(4)).max() > 1e-2
 
 
+def test_divergence_mid_episode():
+    env = HumanoidEnv()
+    env.reset(seed=0)
+    for _ in range(5):
+        obs, _, _, _, info = env.step(np.zeros(69, np.float32))
+    env.data.qvel[30] = 1e12
+    obs2, _, terminated, _, info2 = env.step(np.zeros(69, np.float32))
+    assert terminated and info2["diverged"]
+    np.testing.assert_array_equal(obs2, obs)
+    np.testing.assert_array_equal(info2["qvel"], info["qvel"])
+
+
 @pytest.mark.parametrize("bad", [1e9, np.nan])
 def test_divergence_is_reported_and_recovered(bad):
     env = HumanoidEnv()
-    obs0, _ = env.reset(seed=0)
+    obs0, info0 = env.reset(seed=0)
     env.data.qvel[12] = bad  # inject: a blown-up joint velocity
     obs, reward, terminated, truncated, info = env.step(np.zeros(69, np.float32))
     assert info["diverged"] and terminated and reward == 0.0
     assert np.isfinite(obs).all() and np.isfinite(info["qpos"]).all() and np.isfinite(info["qvel"]).all()
-    np.testing.assert_array_equal(obs, obs0)  # the last good observation
+    np.testing.assert_array_equal(obs, obs0)  # the last good observation, and its state
+    np.testing.assert_array_equal(info["qpos"], info0["qpos"])
     obs, info = env.reset(seed=1)
     obs, _, terminated, _, info = env.step(np.zeros(69, np.float32))
     assert not info["diverged"] and not terminated and np.isfinite(obs).all()
