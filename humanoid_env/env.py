@@ -155,6 +155,8 @@ class HumanoidEnv(gym.Env):
         if a.shape != (NU,):
             raise ValueError(f"action must have shape ({NU},), got {a.shape}")
         np.clip(a, -1.0, 1.0, out=self._act)
+        if not np.isfinite(self._act.sum()):
+            raise ValueError("action contains NaN or inf")
         ctrl = self.data.ctrl
         np.multiply(self._act, self._half, out=ctrl)
         ctrl += self._mid

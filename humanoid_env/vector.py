@@ -131,6 +131,8 @@ class VectorHumanoidEnv(VectorEnv):
         if a.shape != (self.num_envs, NU):
             raise ValueError(f"actions must have shape ({self.num_envs}, {NU}), got {a.shape}")
         np.clip(a, -1.0, 1.0, out=self._act)
+        if not np.isfinite(self._act.sum()):
+            raise ValueError(f"actions contain NaN or inf (envs {np.flatnonzero(~np.isfinite(self._act).all(1)).tolist()})")
         np.multiply(self._act, self._half, out=self._ctrl)
         self._ctrl += self._mid
         failed = self._advance()

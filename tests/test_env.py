@@ -67,6 +67,8 @@ def test_reset_options_set_exact_state_and_reject_bad_input():
         env.reset(options={"qpos": qpos[0]})
     with pytest.raises(ValueError, match="action"):
         env.step(np.zeros(68))
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.full(69, np.nan))
 
 
 def test_pd_holds_tpose_and_reaches_arm_targets():

@@ -32,6 +32,10 @@ def test_spaces_and_metadata():
     assert info["qpos"].shape == (3, NQ) and info["qvel"].shape == (3, NV)
     with pytest.raises(ValueError, match="actions"):
         env.step(np.zeros((2, 69)))
+    bad = np.zeros((3, 69))
+    bad[2, 5] = np.nan
+    with pytest.raises(ValueError, match=r"NaN or inf \(envs \[2\]\)"):
+        env.step(bad)
     with pytest.raises(ValueError, match="num_envs"):
         VectorHumanoidEnv(0)
 
