@@ -142,7 +142,8 @@ def test_composition_product_mean_and_table_25_names():
     b_free = RaiseArms("h", "h", calm=False)(obs)
     np.testing.assert_allclose(get_reward("move-ego-0-2-raisearms-h-h")(obs), a * b_free, rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(get_reward("move-ego-0-2+jump-2")(obs), (a + c) / 2, rtol=1e-5, atol=1e-7)
-    np.testing.assert_allclose(get_reward("move-ego-0-2*raisearms-h-h+jump-2")(obs), (a * b + c) / 2, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(get_reward("move-ego-0-2*raisearms-h-h+jump-2")(obs), (a * b + c) / 2,
+                               rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(get_reward("smpl_jump-2")(obs), c)
     walk_arms_up = state(goal_qpos("arms_stretch"), lin=(2, 0, 0))
     assert r("move-ego-0-2-raisearms-h-h", walk_arms_up) > 0.95  # Table 25: no movement penalty on the arms

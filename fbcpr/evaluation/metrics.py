@@ -21,7 +21,8 @@ def pose_part(x: np.ndarray, who: str = "pose_part") -> np.ndarray:
     """The pose part of observations (..., 358) or pose vectors (..., 214), as float64."""
     arr = np.asarray(x, dtype=np.float64)
     if arr.ndim == 0 or arr.shape[-1] not in (OBS_DIM, POSE_DIM):
-        raise ValueError(f"{who}: expected last dimension {OBS_DIM} (observation) or {POSE_DIM} (pose), got {arr.shape}")
+        raise ValueError(f"{who}: expected last dimension {OBS_DIM} (observation) or {POSE_DIM} (pose), "
+                         f"got {arr.shape}")
     if not np.isfinite(arr).all():
         raise ValueError(f"{who}: input contains NaN or inf")
     return arr[..., POSE] if arr.shape[-1] == OBS_DIM else arr

@@ -166,7 +166,8 @@ def _split_names(names: Iterable[str], motions: Any, wanted: Sequence[str]) -> d
             try:
                 get_reward(n)
             except ValueError as err:
-                raise ValueError(f"{n!r} is neither a goal pose, a clip of the motions nor a reward task ({err})") from None
+                raise ValueError(f"{n!r} is neither a goal pose, a clip of the motions nor a reward task "
+                                 f"({err})") from None
             suite = "reward"
         if suite not in wanted:
             raise ValueError(f"{n!r} is a {suite} task, but the suite being run is {', '.join(wanted)}")
@@ -193,8 +194,9 @@ def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = Non
     wanted = SUITES if suite == "all" else (suite,)
     if "tracking" in wanted and motions is None:
         raise ValueError("the tracking suite needs motions (a MotionLibrary)")
-    chosen = _split_names(tasks, motions, wanted) if tasks else {"reward": list(TASKS), "goal": list(GOALS),
-                                                          "tracking": list(motions.names) if motions is not None else []}
+    clip_names = list(motions.names) if motions is not None else []
+    chosen = (_split_names(tasks, motions, wanted) if tasks
+              else {"reward": list(TASKS), "goal": list(GOALS), "tracking": clip_names})
     results: dict[str, Any] = {"agent": agent_name or getattr(agent, "name", type(agent).__name__),
                                "episodes": episodes, "steps": steps, "fall_prob": fall_prob, "seed": seed}
     init = _initial_states(episodes, fall_prob, motions, seed) if {"reward", "goal"} & set(wanted) else None

@@ -82,7 +82,7 @@ class Features:
         return self.obs[:, start:start + 3]
 
     def local_angvel(self, body: str) -> np.ndarray:
-        """(N, 3) angular velocity expressed in the body's own frame (stable through flips, unlike the heading frame)."""
+        """(N, 3) angular velocity in the body's own frame (stable through flips, unlike the heading frame)."""
         x, zax = self.axis_x(body), self.axis_z(body)
         y = np.cross(zax, x)
         w = self.angvel(body)

@@ -78,12 +78,13 @@ GOALS: dict[str, GoalPose] = {
     "left_hand_wave": Stand(_merge({"R_Shoulder_x": 75}, L_FOREARM_UP)),
     "hands_up": Stand(_merge(L_FOREARM_UP, R_FOREARM_UP)),
     "egyptian": Stand(_merge(L_FOREARM_UP, {"R_Shoulder_y": 90, "R_Elbow_z": 90})),  # left forearm up, right down
-    "scratching_head": Stand(_merge({"L_Shoulder_x": -75}, {"R_Shoulder_x": -70, "R_Shoulder_y": -75, "R_Shoulder_z": -30,
-                                                           "R_Elbow_z": 120})),
+    "scratching_head": Stand({"L_Shoulder_x": -75, "R_Shoulder_x": -70, "R_Shoulder_y": -75, "R_Shoulder_z": -30,
+                              "R_Elbow_z": 120}),
     "point_forward": Stand({"L_Shoulder_x": -75, "R_Shoulder_z": 90}),
     "arms_forward_down": Stand({"L_Shoulder_x": -45, "R_Shoulder_x": 45, "L_Shoulder_z": -90, "R_Shoulder_z": 90}),
-    "hands_on_hips": Stand({"L_Shoulder_x": -30, "L_Shoulder_y": 30, "L_Shoulder_z": -15, "L_Elbow_y": 60, "L_Elbow_z": -90,
-                            "R_Shoulder_x": 30, "R_Shoulder_y": 30, "R_Shoulder_z": 15, "R_Elbow_y": 60, "R_Elbow_z": 90}),
+    "hands_on_hips": Stand({"L_Shoulder_x": -30, "L_Shoulder_y": 30, "L_Shoulder_z": -15, "L_Elbow_y": 60,
+                            "L_Elbow_z": -90, "R_Shoulder_x": 30, "R_Shoulder_y": 30, "R_Shoulder_z": 15,
+                            "R_Elbow_y": 60, "R_Elbow_z": 90}),
     # standing, trunk and leg variations
     "bow": Stand(_merge(ARMS_DOWN, {"Torso_y": 15, "Spine_y": 15, "Chest_y": 15}), com_ahead=-0.02),
     "side_bend_left": Stand(_merge(ARMS_DOWN, {"Torso_x": -10, "Spine_x": -10, "Chest_x": -10})),

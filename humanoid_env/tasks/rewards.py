@@ -30,7 +30,8 @@ LOW_PELVIS = (0.45, 0.7)  # pelvis band for low locomotion
 ARM_BANDS = {"l": (0.0, 1.0, 0.2), "m": (1.3, 1.55, 0.1), "h": (1.8, np.inf, 0.2)}  # wrist z (lo, hi, margin)
 
 
-def _tol(x: np.ndarray, lo: float, hi: float, margin: float, sigmoid: str = "linear", at_margin: float = 0.0) -> np.ndarray:
+def _tol(x: np.ndarray, lo: float, hi: float, margin: float, sigmoid: str = "linear",
+         at_margin: float = 0.0) -> np.ndarray:
     return tolerance(x, bounds=(lo, hi), margin=margin, sigmoid=sigmoid, value_at_margin=at_margin)
 
 
@@ -251,7 +252,7 @@ class Crawl(_Reward):
         return f"crawl-{_fmt(self.height)}-{_fmt(self.speed)}-{self.facing}"
 
     def compute(self, f: Features) -> np.ndarray:
-        level = _tol(f.z("Spine"), self.height - 0.1, self.height + 0.1, 0.3)
+        level = _tol(f.z("Spine"), self.height - 0.1, self.height + 0.1, 0.2)
         sign = -1.0 if self.facing == "d" else 1.0
         face = _tol(sign * f.axis_x("Chest")[:, 2], 0.7, np.inf, 0.5)
         flat = _tol(np.abs(f.axis_z("Chest")[:, 2]), 0.0, 0.5, 0.5)
