@@ -57,6 +57,7 @@ class BFM:
         self._reward_buffer = reward_buffer
         self._checkpoint = checkpoint  # lazy access to reward_buffer.safetensors
         self._prompt: Prompt | None = None
+        self._samples: tuple[tuple[int, int], dict[str, np.ndarray], torch.Tensor] | None = None
 
     # ------------------------------------------------------------------------------------ loading
     @classmethod
@@ -67,7 +68,8 @@ class BFM:
         revision: str | None = None,
         cache_dir: str | Path | None = None,
     ) -> "BFM":
-        """Load from a checkpoint directory, or from a Hub repo id (respects HF_HUB_OFFLINE and the local cache)."""
+        """Load from a checkpoint directory (a training run directory means its latest checkpoint), or from a
+        Hugging Face repo id (downloaded once into the HF cache; HF_HUB_OFFLINE=1 uses the cache only)."""
         path = resolve_checkpoint(path_or_repo_id, revision=revision, cache_dir=cache_dir)
         ckpt = load_checkpoint(path, device=device)
         return cls(ckpt.model, ckpt.config, source=str(path_or_repo_id), checkpoint=ckpt)
@@ -103,6 +105,24 @@ class BFM:
             self._checkpoint = None
         return self._reward_buffer
 
+    def reward_samples(self, n: int, seed: int = 0) -> tuple[dict[str, np.ndarray], torch.Tensor]:
+        """Up to n reward-buffer samples (drawn without replacement, seeded) and their B, cached for the next prompt.
+
+        Computing B over 100k states is most of a reward prompt's cost; relabeling with a new reward is cheap.
+        """
+        buf = self.reward_buffer
+        if buf is None:
+            raise CheckpointError("this model has no reward-inference buffer (reward_buffer.safetensors)")
+        if self._samples is None or self._samples[0] != (n, seed):
+            size = buf["next_obs"].shape[0]
+            if size <= n:
+                samples = buf
+            else:
+                idx = np.sort(np.random.default_rng(seed).choice(size, n, replace=False))
+                samples = {k: v[idx] for k, v in buf.items()}
+            self._samples = ((n, seed), samples, self.backward(samples["next_obs"], as_tensor=True))
+        return self._samples[1], self._samples[2]
+
     @property
     def prompt(self) -> Prompt:
         """The prompt layer for this model (its reward-buffer embeddings are cached across reward prompts)."""
@@ -126,7 +146,7 @@ class BFM:
         zt = zt.unsqueeze(0).expand(o.shape[0], -1) if zt.dim() == 1 else zt
         if zt.dim() != 2 or zt.shape[1] != self.z_dim or zt.shape[0] != o.shape[0]:
             raise ValueError(f"z: expected shape ({self.z_dim},) or ({o.shape[0]}, {self.z_dim}), got {z_shape}")
-        if not (torch.isfinite(o).all() and torch.isfinite(zt).all()):
+        if not (_all_finite(o) and _all_finite(zt)):
             raise ValueError("obs and z must be finite (found NaN or inf)")
         with torch.inference_mode():
             a = self.model.act(o, zt, mean=mean, generator=generator)
@@ -139,10 +159,12 @@ class BFM:
         o = o.unsqueeze(0) if o.dim() == 1 else o
         if o.dim() != 2 or o.shape[1] != self.obs_dim:
             raise ValueError(f"obs: expected shape ({self.obs_dim},) or (N, {self.obs_dim}), got {tuple(o.shape)}")
-        if not torch.isfinite(o).all():
+        if not _all_finite(o):
             raise ValueError("obs must be finite (found NaN or inf)")
+        b = o.new_empty(o.shape[0], self.z_dim)
         with torch.inference_mode():
-            b = torch.cat([self.model.backward(chunk) for chunk in o.split(_CHUNK)]) if o.shape[0] else o.new_zeros(0, self.z_dim)
+            for start in range(0, o.shape[0], _CHUNK):
+                b[start:start + _CHUNK] = self.model.backward(o[start:start + _CHUNK])
         return b if as_tensor else b.cpu().numpy()
 
     def project_z(self, z: np.ndarray | torch.Tensor) -> np.ndarray:
@@ -209,13 +231,19 @@ class BFM:
             )
 
 
+def _all_finite(x: torch.Tensor) -> bool:
+    """NaN/inf check by one float64 reduction (a NaN or inf anywhere makes the sum non-finite; float32 values
+    cannot overflow it), cheaper than a full boolean mask on a 100k-state buffer."""
+    return bool(torch.isfinite(x.sum(dtype=torch.float64)))
+
+
 def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: str | Path | None = None) -> Path:
     """A local checkpoint directory as is, or a Hub repo id downloaded into (or found in) the HF cache."""
     path = Path(src).expanduser()
     if path.exists():
         if not path.is_dir():
             raise CheckpointError(f"{path}: not a checkpoint directory (expected a folder with {MODEL_FILE})")
-        return path
+        return _latest_in_run(path)
     text = str(src)
     if not _REPO_ID.match(text) or text.startswith((".", "/", "~")):
         raise CheckpointError(f"{text}: no such checkpoint directory")
@@ -225,6 +253,16 @@ def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: 
         raise CheckpointError(f"Hugging Face repo {text!r} has no {missing[0]}: it is not an fbcpr checkpoint "
                               f"(or its download is incomplete)")
     return folder
+
+
+def _latest_in_run(path: Path) -> Path:
+    """A training run directory (or its checkpoints/ folder) stands for its latest checkpoint."""
+    if (path / MANIFEST_FILE).exists():
+        return path
+    for root in (path / "checkpoints", path):
+        if (root / "latest").is_file():
+            return root / (root / "latest").read_text().strip()
+    return path
 
 
 def _download(repo_id: str, revision: str | None, cache_dir: str | Path | None) -> str:
@@ -281,7 +319,7 @@ A forward-backward model with conditional policy regularization (FB-CPR) for the
 `fbcpr` package: one latent-conditioned policy that is prompted zero-shot with a reward, a goal pose or a motion.
 
 - observation: {bfm.obs_dim} values, action: {bfm.action_dim} PD targets in [-1, 1], latent z: {bfm.z_dim} dims
-- trained on motions: `{motions}`{f", {steps:,} environment steps (configured)" if steps else ""}
+- trained on motions: `{motions}`{f"; configured training length {steps:,} environment steps" if steps else ""}
 - reward-inference buffer included: {"yes" if has_buffer else "no (reward prompts unavailable)"}
 
 Check the license of the motion data the model was trained on before using it.

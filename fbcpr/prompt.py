@@ -41,11 +41,10 @@ class PromptError(ValueError):
 
 
 class Prompt:
-    """Latent-z inference for one model; caches B over the reward-inference buffer between reward prompts."""
+    """Latent-z inference for one model (B over its reward-inference buffer is cached by the model)."""
 
     def __init__(self, bfm: "BFM") -> None:
         self.bfm = bfm
-        self._buffer_cache: dict[tuple[int, int], tuple[dict[str, np.ndarray], torch.Tensor]] = {}
 
     # ----------------------------------------------------------------------------------------- rewards
     def reward(
@@ -60,7 +59,12 @@ class Prompt:
         if method not in ("weighted", "regression"):
             raise PromptError(f"unknown reward inference method {method!r}: use 'weighted' or 'regression'")
         fn, label = _reward_fn(task)
-        samples, b = self._buffer_sample(n, seed)
+        if n < 1:
+            raise PromptError(f"number of reward samples must be positive, got {n}")
+        if self.bfm.reward_buffer is None:
+            raise PromptError("this checkpoint ships no reward-inference buffer (reward_buffer.safetensors): "
+                              "reward prompts need one; goal, track and imitate prompts still work")
+        samples, b = self.bfm.reward_samples(n, seed)
         try:
             r = fn(samples["next_obs"], None, samples["qpos"], samples["qvel"])
         except Exception as err:  # reward code errors are reported with the reward's name
@@ -81,27 +85,6 @@ class Prompt:
             )
         w = torch.as_tensor(weights, dtype=b.dtype, device=b.device)
         return self._project(w @ b)
-
-    def _buffer_sample(self, n: int, seed: int) -> tuple[dict[str, np.ndarray], torch.Tensor]:
-        """Up to n samples of the reward-inference buffer (without replacement) and their B, cached."""
-        if n < 1:
-            raise PromptError(f"number of reward samples must be positive, got {n}")
-        key = (n, seed)
-        if key not in self._buffer_cache:
-            buf = self.bfm.reward_buffer
-            if buf is None:
-                raise PromptError(
-                    "this checkpoint ships no reward-inference buffer (reward_buffer.safetensors): "
-                    "reward prompts need one; goal, track and imitate prompts still work"
-                )
-            size = buf["next_obs"].shape[0]
-            if size <= n:
-                samples = buf
-            else:
-                idx = np.sort(np.random.default_rng(seed).choice(size, n, replace=False))
-                samples = {k: v[idx] for k, v in buf.items()}
-            self._buffer_cache = {key: (samples, self.bfm.backward(samples["next_obs"], as_tensor=True))}
-        return self._buffer_cache[key]
 
     # ------------------------------------------------------------------------------------------- goals
     def goal(self, target: GoalSpec) -> np.ndarray:

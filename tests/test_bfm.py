@@ -90,6 +90,16 @@ def test_save_and_load_round_trip(bfm, tmp_path):
     assert again.sequence_length == 4 and again.z_dim == 8
 
 
+def test_run_directory_means_its_latest_checkpoint(ckpt, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(ckpt, run / "checkpoints" / "step_0000000100")
+    (run / "checkpoints" / "latest").write_text("step_0000000100")
+    assert BFM.load(run).z_dim == 8 and BFM.load(run / "checkpoints").z_dim == 8
+    (run / "checkpoints" / "latest").write_text("step_0000000200")  # points at nothing
+    with pytest.raises(CheckpointError, match="step_0000000200"):
+        BFM.load(run)
+
+
 def _hub_cache(root: Path, ckpt: Path, repo: str = "org/tiny-bfm") -> Path:
     """The huggingface_hub cache layout: models--org--name/{refs/main, snapshots/<sha>/...}."""
     repo_dir = root / ("models--" + repo.replace("/", "--"))
