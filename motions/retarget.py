@@ -140,6 +140,18 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-9)
 
 
+def _rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(T,3,3) smallest rotations taking unit vectors u onto unit vectors v (Rodrigues)."""
+    axis = np.cross(u, v)
+    s = np.linalg.norm(axis, axis=-1)
+    c = np.einsum("ti,ti->t", u, v)
+    k = axis / np.maximum(s, 1e-12)[:, None]
+    kx = np.zeros(u.shape[:1] + (3, 3))
+    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    kx -= np.swapaxes(kx, 1, 2)
+    return np.eye(3) + s[:, None, None] * kx + (1 - c)[:, None, None] * (kx @ kx)
+
+
 def _frame_from_axes(left: np.ndarray, up: np.ndarray) -> np.ndarray:
     """(T,3,3) rotation with y along `left` and z as close as possible to `up` (x = forward)."""
     y = _unit(left)
@@ -186,10 +198,18 @@ def build_targets(src_pos: dict[str, np.ndarray], src_rot: dict[str, np.ndarray]
     def along(parent_tgt: np.ndarray, a: str, b: str, body_a: str, body_b: str) -> np.ndarray:
         return parent_tgt + _unit(p[b] - p[a]) * rest.length(body_a, body_b)
 
+    down = np.einsum("tij,j->ti", r_pelvis, (0.0, 0.0, -1.0))
+
+    def along_leg(parent_tgt: np.ndarray, a: str, b: str, body_a: str, body_b: str) -> np.ndarray:
+        """Like `along`, but a source leg pointing straight down maps onto our rest leg, whose shank is not
+        exactly vertical (so a straight source knee is a straight knee here, not a hyperextended one)."""
+        turn = _rotation_between(down, _unit(p[b] - p[a]))
+        return parent_tgt + np.einsum("tij,tjk,k->ti", turn, r_pelvis, rest.offset(body_a, body_b))
+
     for s, S in (("l", "L"), ("r", "R")):
         hip = tgt["Pelvis"] + np.einsum("tij,j->ti", r_pelvis, rest.offset("Pelvis", f"{S}_Hip"))
-        tgt[f"{S}_Knee"] = along(hip, f"{s}_hip", f"{s}_knee", f"{S}_Hip", f"{S}_Knee")
-        tgt[f"{S}_Ankle"] = along(tgt[f"{S}_Knee"], f"{s}_knee", f"{s}_ankle", f"{S}_Knee", f"{S}_Ankle")
+        tgt[f"{S}_Knee"] = along_leg(hip, f"{s}_hip", f"{s}_knee", f"{S}_Hip", f"{S}_Knee")
+        tgt[f"{S}_Ankle"] = along_leg(tgt[f"{S}_Knee"], f"{s}_knee", f"{s}_ankle", f"{S}_Knee", f"{S}_Ankle")
         if f"{S}_Ankle" in rots:
             tgt[f"{S}_Toe"] = tgt[f"{S}_Ankle"] + np.einsum("tij,j->ti", rots[f"{S}_Ankle"], rest.offset(f"{S}_Ankle", f"{S}_Toe"))
         else:
@@ -266,7 +286,7 @@ class Retargeter:
         self.fps = fps
         self.config = mink.Configuration(self.model)
         self.tasks = {
-            body: mink.FrameTask(body, "body", position_cost=pc, orientation_cost=oc, lm_damping=1.0)
+            body: mink.FrameTask(body, "body", position_cost=pc, orientation_cost=oc, lm_damping=0.1)
             for body, pc, oc in _TASKS
         }
         self.posture = mink.PostureTask(self.model, cost=0.05)

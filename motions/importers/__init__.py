@@ -1,7 +1,7 @@
 """Import motion files of any supported format into clips: format autodetection, a conversion cache, one entry point.
 
 Formats: AMASS/SMPL `.npz` (direct joint-angle mapping), DeepMimic JSON and BVH (keypoint IK retargeting).
-Conversions are cached by file content hash (plus converter version) under $FBCPR_CACHE_DIR or ~/.cache/fbcpr,
+Conversions are cached by file content hash (plus file name, options and converter version) under $FBCPR_CACHE_DIR or ~/.cache/fbcpr,
 so re-importing the same files is instant; delete that folder to force a fresh conversion.
 """
 from __future__ import annotations
@@ -51,7 +51,7 @@ def cache_dir() -> Path:
 
 def _cache_key(path: Path, fmt: str, options: dict) -> str:
     h = hashlib.sha256()
-    h.update(f"{CONVERTER_VERSION}|{fmt}|{json.dumps(options, sort_keys=True)}|".encode())
+    h.update(f"{CONVERTER_VERSION}|{fmt}|{path.name}|{json.dumps(options, sort_keys=True)}|".encode())
     with open(path, "rb") as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)

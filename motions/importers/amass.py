@@ -80,11 +80,27 @@ def smpl_to_qpos(poses: np.ndarray, trans: np.ndarray, up_axis: str = "z") -> np
     root = Rotation.from_matrix(world) * Rotation.from_rotvec(poses[:, :3]) * basis.inv()
     qpos[:, :3] = trans @ world.T
     qpos[:, 3:7] = root.as_quat(scalar_first=True)
+    ranges = joint_ranges()
     for i, body in enumerate(BODY_NAMES[1:]):
         j = SMPL_INDEX[body]
         local = basis * Rotation.from_rotvec(poses[:, 3 * j:3 * j + 3]) * basis.inv()
-        qpos[:, 7 + 3 * i:10 + 3 * i] = local.as_euler("XYZ")
+        qpos[:, 7 + 3 * i:10 + 3 * i] = hinge_angles(local, ranges[3 * i:3 * i + 3])
     return qpos
+
+
+def hinge_angles(rot: Rotation, ranges: np.ndarray) -> np.ndarray:
+    """(T,3) x-y-z hinge angles of rotations, choosing per frame the one of the two equivalent Euler solutions
+    that lies closer to the joint ranges (scipy returns the middle angle in [-90, 90] deg, but a knee or hip
+    can bend further than 90 deg)."""
+    a = rot.as_euler("XYZ")
+    b = np.stack([a[:, 0] + np.pi, np.pi - a[:, 1], a[:, 2] + np.pi], axis=1)
+    b = (b + np.pi) % (2 * np.pi) - np.pi
+
+    def excess(x: np.ndarray) -> np.ndarray:
+        return (np.clip(ranges[:, 0] - x, 0, None) + np.clip(x - ranges[:, 1], 0, None)).sum(axis=1)
+
+    pick_b = excess(b) < excess(a) - 1e-9
+    return np.where(pick_b[:, None], b, a)
 
 
 def foot_contacts(model, qpos: np.ndarray, fps: float) -> np.ndarray:
