@@ -267,7 +267,7 @@ class Handstand(_Reward):
     name: str = "handstand"
 
     def compute(self, f: Features) -> np.ndarray:
-        feet = _tol(np.minimum(f.z("L_Ankle"), f.z("R_Ankle")), 1.5, np.inf, 1.5)
+        feet = _tol(np.minimum(f.z("L_Ankle"), f.z("R_Ankle")), 1.5, np.inf, 1.0)
         head = _tol(f.z("Head"), 0.0, 0.7, 0.7)
         spin = _tol(np.linalg.norm(f.angvel("Pelvis"), axis=1), 0.0, 0.5, 2.0)
         return feet * head * _still(f) * spin
@@ -280,7 +280,7 @@ class Headstand(_Reward):
     name: str = "headstand"
 
     def compute(self, f: Features) -> np.ndarray:
-        feet = _tol(np.minimum(f.z("L_Ankle"), f.z("R_Ankle")), 1.4, np.inf, 1.4)
+        feet = _tol(np.minimum(f.z("L_Ankle"), f.z("R_Ankle")), 1.4, np.inf, 1.0)
         head = _tol(f.z("Head"), 0.0, 0.2, 0.5)
         spin = _tol(np.linalg.norm(f.angvel("Pelvis"), axis=1), 0.0, 0.5, 2.0)
         return feet * head * _still(f) * spin
