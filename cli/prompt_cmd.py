@@ -114,10 +114,10 @@ def _load(ckpt: str, device: str) -> Any:
     return BFM.load(ckpt, device=device)
 
 
-def _load_clip(path: Path) -> Any:
-    from motions.clip import load_clip
+def _load_clip(spec: str) -> Any:
+    from fbcpr.prompt import load_motion
 
-    return load_clip(path)
+    return load_motion(spec)
 
 
 def _table(title: str, rows: list[tuple[str, str]]) -> Table:
@@ -142,7 +142,8 @@ def prompt_command(
     ckpt: str = typer.Argument(..., help=CKPT_HELP),
     reward: Optional[str] = typer.Option(None, "--reward", help="Reward task, e.g. jump-2 or move-ego-0-2*raisearms-h-h."),
     goal: Optional[str] = typer.Option(None, "--goal", help="Goal pose name, e.g. t_pose."),
-    imitate: Optional[Path] = typer.Option(None, "--imitate", help="Clip .npz to imitate with one z (ER_FB)."),
+    imitate: Optional[str] = typer.Option(None, "--imitate", help="Clip .npz (or built-in clip name, e.g. walk) to "
+                                          "imitate with one z (ER_FB)."),
     steps: int = typer.Option(300, "--steps", min=1, help="Episode length in control steps (30 Hz)."),
     video: Optional[Path] = typer.Option(None, "--video", help=VIDEO_HELP),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial state."),
@@ -187,7 +188,8 @@ def prompt_command(
 @cli_errors
 def track_command(
     ckpt: str = typer.Argument(..., help=CKPT_HELP),
-    clip_path: Path = typer.Argument(..., help="Clip .npz to track from its first state."),
+    clip_path: str = typer.Argument(..., help="Clip .npz (or built-in clip name, e.g. walk) to track from its "
+                                              "first state."),
     video: Optional[Path] = typer.Option(None, "--video", help=VIDEO_HELP + " Agent left, reference right."),
     device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
 ) -> None:
@@ -214,8 +216,8 @@ def track_command(
 @cli_errors
 def timeline_command(
     ckpt: str = typer.Argument(..., help=CKPT_HELP),
-    spec: str = typer.Argument(..., help='Segments "ITEM:SECONDS,..."; ITEM is a reward task, a goal name or a '
-                                         'clip .npz, e.g. "move-ego-0-2:4,jump-2:2,sitonground:4".'),
+    spec: str = typer.Argument(..., help='Segments "ITEM:SECONDS,..."; ITEM is a reward task, a goal name, a clip '
+                                         '.npz or a built-in clip name, e.g. "move-ego-0-2:4,jump-2:2,sitonground:4".'),
     video: Optional[Path] = typer.Option(None, "--video", help=VIDEO_HELP),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial state."),
     device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
@@ -253,7 +255,7 @@ def timeline_table(timeline: Any, ep: Episode) -> Table:
         elif states is not None and seg.kind == "goal":
             metric, value = "final d_smpl", f"{d_smpl(states[-1], goal_observation(seg.label, states.shape[1])[0]):.3f}"
         elif states is not None and seg.kind == "clip":
-            metric, value = "EMD to clip", f"{emd(states, _load_clip(Path(seg.label)).obs):.3f}"
+            metric, value = "EMD to clip", f"{emd(states, _load_clip(seg.label).obs):.3f}"
         table.add_row(seg.label, seg.kind, f"{seg.seconds:g}", metric, value)
         start += seg.steps
     return table

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 RewardSpec = Union[str, Callable[..., np.ndarray]]
 #: A goal given by name, as a qpos (76,) pose, or as an observation (358,).
 GoalSpec = Union[str, np.ndarray, torch.Tensor, Sequence[float]]
-#: A motion given as a Clip, a path to a clip file, or an (T, 358) observation sequence.
+#: A motion given as a Clip, a clip file path, a built-in clip name, or an (T, 358) observation sequence.
 MotionSpec = Union["Clip", str, Path, np.ndarray, torch.Tensor]
 
 TEMPERATURE = 10.0
@@ -173,18 +173,38 @@ def goal_observation(target: GoalSpec, obs_dim: int) -> np.ndarray:
     return obs
 
 
+def builtin_clip_names() -> list[str]:
+    """Names of the built-in synthetic clips (stand, walk, ...), usable wherever a clip file is."""
+    from motions.synthetic import default_clips
+
+    return [c.name for c in default_clips()]
+
+
+def load_motion(spec: "str | Path") -> "Clip":
+    """A clip from an .npz file, or a built-in synthetic clip by name; errors name the file or list the names."""
+    from motions.clip import ClipFormatError, load_clip
+
+    path = Path(spec)
+    if path.is_file():
+        try:
+            return load_clip(path)
+        except ClipFormatError as err:
+            raise PromptError(str(err)) from None
+    if path.suffix == "" and path.parent == Path("."):
+        from motions.synthetic import default_clips
+
+        for clip in default_clips():
+            if clip.name == str(spec):
+                return clip
+        raise PromptError(f"motion {str(spec)!r}: no such clip file, nor a built-in clip "
+                          f"({', '.join(builtin_clip_names())})")
+    raise PromptError(f"motion clip not found: {path}")
+
+
 def motion_observations(motion: MotionSpec, obs_dim: int, min_length: int) -> np.ndarray:
     """(T, obs_dim) float32 observations of a Clip, a clip file or an array, checked for shape, length and NaN."""
     if isinstance(motion, (str, Path)):
-        from motions.clip import ClipFormatError, load_clip
-
-        path = Path(motion)
-        if not path.is_file():
-            raise PromptError(f"motion clip not found: {path}")
-        try:
-            motion = load_clip(path)
-        except ClipFormatError as err:
-            raise PromptError(str(err)) from None
+        motion = load_motion(motion)
     obs = getattr(motion, "obs", motion)
     arr = np.asarray(obs.detach().cpu() if isinstance(obs, torch.Tensor) else obs, dtype=np.float32)
     name = getattr(motion, "name", "motion")

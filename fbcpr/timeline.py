@@ -1,7 +1,7 @@
 """Timeline prompts: several prompts played back to back, e.g. walk 4 s, then jump 2 s, then sit 4 s.
 
-The text form is "ITEM:SECONDS,ITEM:SECONDS,...", where ITEM is a clip file (tracked frame by frame), a goal
-name, or a reward task (combined rewards like "move-ego-0-2*raisearms-l-l" included). Each segment turns into
+The text form is "ITEM:SECONDS,ITEM:SECONDS,...", where ITEM is a clip file or a built-in clip name (tracked
+frame by frame), a goal name, or a reward task (combined rewards like "move-ego-0-2*raisearms-l-l" included). Each segment turns into
 one z per control step (30 Hz); the policy switches z at segment boundaries and the state carries over, which
 is how a BFM stitches motions without any extra training.
 """
@@ -14,7 +14,7 @@ from typing import Literal, Union
 
 import numpy as np
 
-from fbcpr.prompt import Prompt, PromptError
+from fbcpr.prompt import Prompt, PromptError, builtin_clip_names
 
 Kind = Literal["reward", "goal", "clip", "z"]
 #: A timeline item: a text spec (clip path, goal name or reward task) or an explicit z vector.
@@ -56,14 +56,22 @@ def parse_timeline(text: str) -> list[tuple[str, float]]:
 
 
 def classify(spec: str) -> Kind:
-    """A clip if the spec names a clip file, a goal if it is a known goal name, else a reward task."""
+    """A clip file, a goal name, a reward task, or a built-in clip name, in that order; else a clear error."""
+    from humanoid_env.tasks import get_reward
     from humanoid_env.tasks.goals import goal_names
 
     if spec.endswith(".npz") or Path(spec).is_file():
         return "clip"
     if spec in goal_names():
         return "goal"
-    return "reward"
+    try:
+        get_reward(spec)
+        return "reward"
+    except ValueError as err:
+        if spec in builtin_clip_names():
+            return "clip"
+        raise PromptError(f"timeline item {spec!r} is not a clip file, a goal pose, a built-in clip "
+                          f"({', '.join(builtin_clip_names())}) or a reward task: {err}") from None
 
 
 class Timeline:
@@ -88,7 +96,7 @@ class Timeline:
                 label = str(item)
                 kind = classify(label)
                 if kind == "clip":
-                    z = prompt.track(Path(label))
+                    z = prompt.track(label)
                 elif kind == "goal":
                     z = prompt.goal(label)
                 else:

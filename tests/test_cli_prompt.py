@@ -105,7 +105,7 @@ def test_timeline_runs_every_segment(ckpt, clip_path, tmp_path):
     (["prompt", "{ckpt}", "--reward", "fly-to-moon"], "unknown reward task 'fly-to-moon'"),
     (["prompt", "{ckpt}", "--goal", "t_pose", "--reward", "jump-2"], "exactly one of"),
     (["prompt", "{missing}", "--goal", "t_pose"], "no such checkpoint directory"),
-    (["track", "{ckpt}", "{missing}.npz"], "no such clip file"),
+    (["track", "{ckpt}", "{missing}.npz"], "motion clip not found"),
     (["timeline", "{ckpt}", "jump-2:abc"], "not a number"),
 ])
 def test_bad_input_is_one_clean_line(ckpt, tmp_path, args, message):

@@ -189,5 +189,16 @@ def test_timeline_syntax_errors(text, match):
 
 
 def test_timeline_unknown_item_names_it(bfm):
-    with pytest.raises(PromptError, match="moonwalk"):
+    with pytest.raises(PromptError, match="'moonwalk' is not a clip file, a goal pose, a built-in clip"):
         Timeline.from_string(bfm.prompt, "jump-2:1,moonwalk:2")
+
+
+def test_builtin_clip_names_work_as_motions(bfm):
+    from motions.synthetic import default_clips
+
+    walk = next(c for c in default_clips() if c.name == "walk")
+    np.testing.assert_allclose(bfm.prompt.track("walk"), bfm.prompt.track(walk), rtol=1e-6)
+    tl = Timeline.from_string(bfm.prompt, "walk:1,t_pose:1")
+    assert [s.kind for s in tl.segments] == ["clip", "goal"]
+    with pytest.raises(PromptError, match="nor a built-in clip"):
+        bfm.prompt.imitate("moonwalk")
