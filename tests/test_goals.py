@@ -1,4 +1,5 @@
 """Goal poses: named, on the floor, within joint ranges, and holdable under PD control; goals from clips."""
+import mujoco
 import numpy as np
 import pytest
 
@@ -27,6 +28,17 @@ def test_goal_state_is_valid_and_on_the_floor(name):
     obs = goal_obs(name)
     assert obs.shape == (358,) and np.all(obs[214:] == 0)  # velocities zero
     np.testing.assert_allclose(obs, observe(MODEL, q, np.zeros(NV)))
+
+
+def test_no_goal_interpenetrates_itself():
+    data = mujoco.MjData(MODEL)
+    for name in GOALS:
+        data.qpos[:] = goal_qpos(name)
+        data.qpos[2] += 10.0  # away from the floor: only self-contacts remain
+        mujoco.mj_kinematics(MODEL, data)
+        mujoco.mj_collision(MODEL, data)
+        depth = max([0.0, *(-data.contact.dist[: data.ncon])])
+        assert depth < 0.01, f"{name}: body geoms overlap by {depth:.3f} m"
 
 
 def test_specs_are_applied():
