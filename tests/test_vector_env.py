@@ -115,3 +115,12 @@ def test_termination_fn_resets_those_envs():
     env.reset(seed=0)
     _, _, term, trunc, info = env.step(np.zeros((2, 69), np.float32))
     assert term.tolist() == [True, False] and info["_final_obs"].tolist() == [True, False]
+
+
+def test_reward_by_task_name():
+    env = VectorHumanoidEnv(2, num_threads=1, reward="raisearms-l-l")  # resolved through humanoid_env.tasks
+    env.reset(seed=0)
+    _, reward, _, _, _ = env.step(np.zeros((2, 69), np.float32))
+    assert reward.shape == (2,) and ((reward >= 0) & (reward <= 1)).all()
+    with pytest.raises(ValueError, match="unknown reward"):
+        VectorHumanoidEnv(1, reward="no-such-task")
