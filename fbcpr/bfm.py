@@ -1,6 +1,6 @@
 """`BFM`: a trained FB-CPR model ready to prompt and act, loaded from a checkpoint directory or the Hugging Face Hub.
 
-    bfm = BFM.load("runs/quickstart/final")            # or BFM.load("org/fbcpr-humanoid")
+    bfm = BFM.load("runs/demo")                         # or BFM.load("org/fbcpr-humanoid")
     z = bfm.prompt.reward("move-ego-0-2")               # also .goal("t_pose"), .track(clip), .imitate(clip)
     action = bfm.act(obs, z)                            # numpy or torch, (358,) or (N, 358)
 
@@ -22,6 +22,8 @@ from fbcpr.checkpoint import (
     MANIFEST_FILE,
     MODEL_FILE,
     REWARD_FILE,
+    REWARD_KEYS,
+    Checkpoint,
     CheckpointError,
     load_checkpoint,
     save_checkpoint,
@@ -48,7 +50,7 @@ class BFM:
         reward_buffer: dict[str, np.ndarray] | None = None,
         metrics: dict[str, float] | None = None,
         source: str | None = None,
-        checkpoint: Any = None,
+        checkpoint: Checkpoint | None = None,
     ) -> None:
         self.model = model.eval()
         self.config = config
@@ -58,6 +60,7 @@ class BFM:
         self._checkpoint = checkpoint  # lazy access to reward_buffer.safetensors
         self._prompt: Prompt | None = None
         self._samples: tuple[tuple[int, int], dict[str, np.ndarray], torch.Tensor] | None = None
+        self._buffer_checked = False
 
     # ------------------------------------------------------------------------------------ loading
     @classmethod
@@ -103,6 +106,9 @@ class BFM:
         if self._reward_buffer is None and self._checkpoint is not None:
             self._reward_buffer = self._checkpoint.reward_buffer()
             self._checkpoint = None
+        if self._reward_buffer is not None and not self._buffer_checked:
+            check_reward_buffer(self._reward_buffer, self.obs_dim)
+            self._buffer_checked = True
         return self._reward_buffer
 
     def reward_samples(self, n: int, seed: int = 0) -> tuple[dict[str, np.ndarray], torch.Tensor]:
@@ -229,6 +235,22 @@ class BFM:
             return huggingface_hub.upload_folder(
                 repo_id=repo_id, folder_path=folder, token=token, commit_message=commit_message
             )
+
+
+def check_reward_buffer(buf: dict[str, np.ndarray], obs_dim: int) -> None:
+    """next_obs (N, obs_dim), qpos (N, 76), qvel (N, 75), N >= 1, finite; CheckpointError naming what is wrong."""
+    from humanoid_env.model import NQ, NV
+
+    missing = [k for k in REWARD_KEYS if k not in buf]
+    if missing:
+        raise CheckpointError(f"reward-inference buffer: missing arrays {missing}")
+    n = len(buf["next_obs"])
+    for key, width in zip(REWARD_KEYS, (obs_dim, NQ, NV)):
+        shape = np.shape(buf[key])
+        if len(shape) != 2 or shape[1] != width or shape[0] != n or n == 0:
+            raise CheckpointError(f"reward-inference buffer: {key} has shape {shape}, expected ({n or 'N>0'}, {width})")
+        if not np.isfinite(np.sum(buf[key], dtype=np.float64)):
+            raise CheckpointError(f"reward-inference buffer: {key} contains NaN or inf")
 
 
 def _all_finite(x: torch.Tensor) -> bool:

@@ -80,6 +80,20 @@ def test_act_rejects_nan(bfm):
         bfm.act(obs, np.ones(8, np.float32))
 
 
+@pytest.mark.parametrize("key, value, match", [
+    ("qpos", np.zeros((32, 70)), r"qpos has shape \(32, 70\), expected \(32, 76\)"),
+    ("next_obs", np.zeros((0, 358)), "next_obs has shape"),
+    ("qvel", np.full((32, 75), np.nan), "qvel contains NaN"),
+])
+def test_malformed_reward_buffer_is_named(bfm, key, value, match):
+    buf = {**bfm.reward_buffer, key: value}
+    if key == "next_obs":
+        buf = {k: v[:0] for k, v in buf.items()}
+    bad = BFM(bfm.model, bfm.config, reward_buffer=buf)
+    with pytest.raises(CheckpointError, match=match):
+        bad.prompt.reward("jump-2")
+
+
 def test_save_and_load_round_trip(bfm, tmp_path):
     out = bfm.save(tmp_path / "copy")
     again = BFM.load(out)
