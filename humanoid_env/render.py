@@ -7,6 +7,7 @@ raises a RuntimeError that says so.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 from typing import Iterable
 
@@ -21,7 +22,9 @@ class TrackRenderer:
 
     def __init__(self, model: mujoco.MjModel, height: int = 240, width: int = 320) -> None:
         try:
-            self._renderer = mujoco.Renderer(model, height, width)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # backend chatter (GLFWError...); a failure raises below
+                self._renderer = mujoco.Renderer(model, height, width)
         except Exception as err:  # any backend failure: missing library, no display, bad MUJOCO_GL
             backend = os.environ.get("MUJOCO_GL", "<unset, so glfw>")
             raise RuntimeError(
