@@ -10,6 +10,7 @@ from __future__ import annotations
 import ctypes
 import glob
 import os
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -19,7 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from humanoid_env.model import JOINT_NAMES, joint_ranges, load_model
-from motions.kinematics import foot_geom_ids, geom_bottoms, interp_linear, interp_rotations, target_times
+from motions.kinematics import foot_geom_ids, geom_bottoms, interp_linear, interp_rotations
 
 KEYPOINTS = (
     "l_hip", "r_hip", "l_knee", "r_knee", "l_ankle", "r_ankle", "l_toe", "r_toe",
@@ -364,8 +365,6 @@ class Retargeter:
             return self._run(src)
 
     def _run(self, src: SourceMotion) -> tuple[np.ndarray, RetargetReport]:
-        import time
-
         start = time.perf_counter()
         pos, rot, _ = _resample(src, self.fps)
         targets, rots, scale = build_targets(pos, rot, self.rest)

@@ -17,10 +17,11 @@ from motions.importers.amass import SMPL_INDEX, SMPL_TO_OURS, AmassFormatError, 
 BASIS = Rotation.from_matrix(SMPL_TO_OURS)
 
 
-def _smpl_npz(path, angles: np.ndarray, root_ours: Rotation, trans: np.ndarray, fps: float, up_y: bool = False):
-    """Write an SMPL+H-sized AMASS file whose joints have our hinge angles `angles` (T,69)."""
+def _smpl_npz(path, angles: np.ndarray, root_ours: Rotation, trans: np.ndarray, fps: float, up_y: bool = False,
+              width: int = 72):
+    """Write an AMASS file (SMPL: width 72, SMPL+H: 156) whose joints have our hinge angles `angles` (T,69)."""
     n = angles.shape[0]
-    poses = np.zeros((n, 156))
+    poses = np.zeros((n, width))
     root_world = root_ours * BASIS  # body SMPL axes -> our axes -> world
     if up_y:
         to_y_up = Rotation.from_matrix(np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]))
@@ -30,6 +31,8 @@ def _smpl_npz(path, angles: np.ndarray, root_ours: Rotation, trans: np.ndarray, 
     for i, body in enumerate(BODY_NAMES[1:]):
         ours = Rotation.from_euler("XYZ", angles[:, 3 * i:3 * i + 3])
         j = SMPL_INDEX[body]
+        if j >= 22 and width != 72:
+            j += 18  # SMPL+H: slots 22, 23 are fingers; put the hand rotations on other fingers (40, 41): ignored
         poses[:, 3 * j:3 * j + 3] = (BASIS.inv() * ours * BASIS).as_rotvec()
     np.savez(path, poses=poses, trans=trans, mocap_framerate=np.float64(fps), betas=np.zeros(16),
              gender=np.str_("neutral"))
@@ -75,11 +78,14 @@ def test_knee_bend_convention():
     np.testing.assert_allclose(q[0, 3:7], [1, 0, 0, 0], atol=1e-12)
 
 
-def test_y_up_source_with_option(tmp_path):
+def test_y_up_smplh_source_with_option(tmp_path):
     angles, root, trans, _ = _known_motion(20)
-    path = _smpl_npz(tmp_path / "y_up.npz", angles, root, trans, fps=30.0, up_y=True)
+    path = _smpl_npz(tmp_path / "y_up.npz", angles, root, trans, fps=30.0, up_y=True, width=156)
     clip, _ = import_file(path, up_axis="y", use_cache=False)
-    np.testing.assert_allclose(clip.qpos[:, 7:], angles, atol=1e-6)
+    hands = [JOINT_NAMES.index(f"{s}_Hand_{a}") for s in "LR" for a in "xyz"]
+    body = np.setdiff1d(np.arange(69), hands)
+    np.testing.assert_allclose(clip.qpos[:, 7 + body], angles[:, body], atol=1e-6)
+    np.testing.assert_allclose(clip.qpos[:, 7 + np.array(hands)], 0.0, atol=1e-12)  # SMPL+H: hands stay at rest
     np.testing.assert_allclose(clip.qpos[:, :2], trans[:, :2], atol=1e-9)
 
 

@@ -70,7 +70,11 @@ def read_amass(path: str | Path) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def smpl_to_qpos(poses: np.ndarray, trans: np.ndarray, up_axis: str = "z") -> np.ndarray:
-    """(T,76) qpos (unclipped, not grounded) from SMPL axis-angle poses and root translations."""
+    """(T,76) qpos (not grounded) from SMPL axis-angle poses and root translations.
+
+    Only plain SMPL (72 values per frame) has hand joints at 22 and 23; in SMPL+H (156) and SMPL-X (165) those
+    slots hold a finger or the jaw, so our hand bodies stay at rest for them.
+    """
     if up_axis not in ("y", "z"):
         raise ValueError(f"up_axis must be 'y' or 'z', got {up_axis!r}")
     world = Y_UP_TO_Z_UP if up_axis == "y" else np.eye(3)
@@ -83,6 +87,8 @@ def smpl_to_qpos(poses: np.ndarray, trans: np.ndarray, up_axis: str = "z") -> np
     ranges = joint_ranges()
     for i, body in enumerate(BODY_NAMES[1:]):
         j = SMPL_INDEX[body]
+        if j >= 22 and poses.shape[1] != 72:
+            continue
         local = basis * Rotation.from_rotvec(poses[:, 3 * j:3 * j + 3]) * basis.inv()
         qpos[:, 7 + 3 * i:10 + 3 * i] = hinge_angles(local, ranges[3 * i:3 * i + 3])
     return qpos
