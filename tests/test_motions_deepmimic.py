@@ -113,3 +113,14 @@ def test_malformed_deepmimic_files(tmp_path):
     ok = tmp_path / "ok.txt"
     ok.write_text(json.dumps({"Loop": "none", "Frames": [good_row] * 10}))
     assert load_deepmimic(ok).positions["l_ankle"].shape == (10, 3)
+
+
+@needs_data
+def test_looping_walk_repeats_without_jumps():
+    clip, report = import_file(SHARED / "humanoid3d_walk.txt", loop_seconds=5.0, use_cache=False)
+    assert clip.seconds >= 5.0 and clip.n_frames > 3 * report.frames
+    step = np.linalg.norm(np.diff(clip.qpos[:, :2], axis=0), axis=1)
+    assert step.max() < 2.5 * np.median(step)  # no jump back at the cycle seams
+    joints_step = np.abs(np.diff(clip.qpos[:, 7:], axis=0)).max()
+    assert joints_step < 0.5
+    assert np.linalg.norm(clip.qpos[-1, :2] - clip.qpos[0, :2]) > 4.0  # kept walking: about 1.4 m/s
