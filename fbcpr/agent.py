@@ -137,20 +137,21 @@ class FBCPRAgent:
             r_fz = losses.implicit_reward(B_det, z)
 
         # F: FB TD loss + Fz regularisation; Q: TD on the discriminator reward
-        ez_F = model.forward_map.embed(obs_n, z)
-        F_sa = model.forward_map(obs_n, action, z, z_embedding=ez_F)
+        pre_F = model.forward_map.precompute(obs_n, z)
+        F_sa = model.forward_map(obs_n, action, z, pre=pre_F)
         M = torch.einsum("mid,jd->mij", F_sa, B_next)
         fb = losses.fb_loss(M, target_M, discount)
         fz = losses.td_loss((F_sa * z).sum(-1), r_fz, target_Fz, discount)
         ortho = losses.ortho_loss(B_next)
-        ez_Q = model.critic.embed(obs_n, z)
-        Q_sa = model.critic(obs_n, action, z, z_embedding=ez_Q)[..., 0]
+        pre_Q = model.critic.precompute(obs_n, z)
+        Q_sa = model.critic(obs_n, action, z, pre=pre_Q)[..., 0]
         critic = losses.td_loss(Q_sa, reward, target_Q, discount)
 
-        # actor: F and Q with frozen weights at a ~ pi(s, z), reusing their (s, z) embeddings
+        # actor: F and Q with frozen weights at a ~ pi(s, z), reusing their (s, z)-only parts
         a_pi = model.actor_sample(obs_n, z, self.generator)
-        Fz_pi = (model.forward_map(obs_n, a_pi, z, detach_params=True, z_embedding=ez_F.detach()) * z).sum(-1)
-        Q_pi = model.critic(obs_n, a_pi, z, detach_params=True, z_embedding=ez_Q.detach())[..., 0]
+        detached = lambda pre: tuple(t.detach() for t in pre)  # noqa: E731
+        Fz_pi = (model.forward_map(obs_n, a_pi, z, detach_params=True, pre=detached(pre_F)) * z).sum(-1)
+        Q_pi = model.critic(obs_n, a_pi, z, detach_params=True, pre=detached(pre_Q))[..., 0]
         actor = losses.actor_loss(Fz_pi, Q_pi, cfg.actor_reg_coef, cfg.actor_pessimism)
 
         total = (disc + cfg.grad_penalty * gp + fb + cfg.fz_coef * fz + cfg.ortho_coef * ortho + critic + actor)

@@ -47,11 +47,17 @@ def ortho_loss(B: Tensor) -> Tensor:
     return _off_diagonal_mean_sq(cov) - torch.diagonal(cov).mean()
 
 
-def implicit_reward(B_next: Tensor, z: Tensor) -> Tensor:
-    """B(s')^T Sigma_B^{-1} z with Sigma_B = E[B B^T] over the batch (line 25), without gradient."""
+def implicit_reward(B_next: Tensor, z: Tensor, ridge: float = 1e-6) -> Tensor:
+    """B(s')^T Sigma_B^{-1} z with Sigma_B = E[B B^T] over the batch (line 25), without gradient.
+
+    Solved by Cholesky with a ridge of `ridge` x mean eigenvalue (keeps batches with n < d finite); an
+    eigendecomposition-based pseudo-inverse costs more than a whole network forward here."""
     with torch.no_grad():
+        d = B_next.shape[1]
         cov = B_next.T @ B_next / B_next.shape[0]
-        return (B_next @ torch.linalg.pinv(cov, hermitian=True) * z).sum(-1)
+        cov = cov + ridge * cov.diagonal().mean() * torch.eye(d, dtype=cov.dtype, device=cov.device)
+        chol = torch.linalg.cholesky(cov)
+        return (B_next * torch.cholesky_solve(z.T, chol).T).sum(-1)
 
 
 def td_loss(values: Tensor, reward: Tensor, target: Tensor, discount: Tensor) -> Tensor:

@@ -43,9 +43,9 @@ class FBCPRModel(nn.Module):
     def normalize(self, obs: Tensor) -> Tensor:
         return self.obs_normalizer(obs)
 
-    def actor_mean(self, obs_n: Tensor, z: Tensor, z_embedding: Tensor | None = None) -> Tensor:
+    def actor_mean(self, obs_n: Tensor, z: Tensor) -> Tensor:
         """tanh mean of the Gaussian policy at normalized observations."""
-        return torch.tanh(self.actor(obs_n, None, z, z_embedding=z_embedding)[0])
+        return torch.tanh(self.actor(obs_n, None, z)[0])
 
     def actor_sample(self, obs_n: Tensor, z: Tensor, generator: torch.Generator | None = None) -> Tensor:
         """mean + clipped N(0, std^2) noise, clamped to [-1, 1] with a straight-through gradient."""

@@ -32,6 +32,20 @@ class EnsembleLinear(nn.Module):
             x = x.expand(self.members, -1, -1)
         return torch.baddbmm(b, x, w)
 
+    def partial(self, x: Tensor, start: int, stop: int, detach_params: bool = False, bias: bool = True,
+                add_to: Tensor | None = None) -> Tensor:
+        """Contribution of input features [start, stop) (x holds just those), plus the bias and/or `add_to`."""
+        w = self.weight[:, start:stop]
+        w = w.detach() if detach_params else w
+        if x.dim() == 2:
+            x = x.expand(self.members, -1, -1)
+        if add_to is None:
+            base = (self.bias.detach() if detach_params else self.bias) if bias else None
+            return torch.bmm(x, w) if base is None else torch.baddbmm(base, x, w)
+        if bias:
+            add_to = add_to + (self.bias.detach() if detach_params else self.bias)
+        return torch.baddbmm(add_to, x, w)
+
 
 class EnsembleLayerNorm(nn.Module):
     """LayerNorm with a separate affine transform per ensemble member."""
@@ -59,9 +73,14 @@ class Stack(nn.Module):
         self.final = final
 
     def forward(self, x: Tensor, detach_params: bool = False) -> Tensor:
+        return self.forward_from(self.layers[0](x, detach_params), detach_params)
+
+    def forward_from(self, x: Tensor, detach_params: bool = False) -> Tensor:
+        """Continue from the first layer's pre-activation."""
         last = len(self.layers) - 1
         for i, layer in enumerate(self.layers):
-            x = layer(x, detach_params)
+            if i > 0:
+                x = layer(x, detach_params)
             if i == 0 and (i < last or self.final == "relu"):
                 x = torch.tanh(self.norm(x, detach_params))
             elif i < last or self.final == "relu":
@@ -78,28 +97,35 @@ class ZConditionedNet(nn.Module):
     """Two-embedding architecture (Table 6): phi(s, x) and psi(s, z) concatenated, then an MLP.
 
     F and Q use x = a; the actor uses no x (an embedding over s alone). Output: (members, n, out_dim).
+    Concatenations feeding a linear layer are computed as sums of per-block matmuls, so the blocks that
+    depend only on (s, z) (`precompute`) can be shared by several evaluations that differ only in the action.
     """
 
     def __init__(self, obs_dim: int, extra_dim: int, z_dim: int, out_dim: int, hidden: int, hidden_layers: int,
                  embedding_layers: int, members: int) -> None:
         super().__init__()
-        self.members = members
+        self.members, self.obs_dim, self.half = members, obs_dim, hidden // 2
         self.embed_x = _embedding(obs_dim + extra_dim, hidden, embedding_layers, members)
         self.embed_z = _embedding(obs_dim + z_dim, hidden, embedding_layers, members)
         self.head = _Head(hidden // 2 * 2, hidden, hidden_layers, out_dim, members)
 
-    def embed(self, obs: Tensor, z: Tensor, detach_params: bool = False) -> Tensor:
-        """psi(s, z): shared by every evaluation at the same (s, z) (F loss and actor loss reuse it)."""
-        return self.embed_z(torch.cat([obs, z], -1), detach_params)
+    def precompute(self, obs: Tensor, z: Tensor, detach_params: bool = False) -> tuple[Tensor, Tensor]:
+        """The (s, z)-only parts: phi's first-layer pre-activation from s, and psi(s, z)'s contribution to the
+        head's first layer. Reusable for any action at the same (s, z)."""
+        ez = self.embed_z(torch.cat([obs, z], -1), detach_params)
+        x_pre = self.embed_x.layers[0].partial(obs, 0, self.obs_dim, detach_params, bias=True)
+        z_pre = self.head.layers[0].partial(ez, self.half, 2 * self.half, detach_params, bias=True)
+        return x_pre, z_pre
 
     def forward(self, obs: Tensor, extra: Tensor | None, z: Tensor, detach_params: bool = False,
-                z_embedding: Tensor | None = None) -> Tensor:
-        ez = self.embed(obs, z, detach_params) if z_embedding is None else z_embedding
-        x = obs if extra is None else torch.cat([obs, extra], -1)
-        ex = self.embed_x(x, detach_params)
-        if ex.shape[0] != ez.shape[0]:
-            ez = ez.expand(ex.shape[0], -1, -1)
-        return self.head(torch.cat([ex, ez], -1), detach_params)
+                pre: tuple[Tensor, Tensor] | None = None) -> Tensor:
+        x_pre, z_pre = self.precompute(obs, z, detach_params) if pre is None else pre
+        first = self.embed_x.layers[0]
+        if extra is not None:
+            x_pre = first.partial(extra, self.obs_dim, first.in_features, detach_params, bias=False, add_to=x_pre)
+        ex = self.embed_x.forward_from(x_pre, detach_params)
+        h = self.head.layers[0].partial(ex, 0, self.half, detach_params, bias=False, add_to=z_pre)
+        return self.head.forward_from(h, detach_params)
 
 
 class _Head(nn.Module):
@@ -110,10 +136,11 @@ class _Head(nn.Module):
         sizes = [in_dim] + [hidden] * hidden_layers + [out_dim]
         self.layers = nn.ModuleList(EnsembleLinear(a, b, members) for a, b in zip(sizes[:-1], sizes[1:]))
 
-    def forward(self, x: Tensor, detach_params: bool = False) -> Tensor:
-        for layer in self.layers[:-1]:
-            x = F.relu(layer(x, detach_params))
-        return self.layers[-1](x, detach_params)
+    def forward_from(self, h: Tensor, detach_params: bool = False) -> Tensor:
+        """Continue from the first layer's pre-activation."""
+        for layer in self.layers[1:]:
+            h = layer(F.relu(h), detach_params)
+        return h
 
 
 class BackwardNet(nn.Module):

@@ -59,7 +59,7 @@ def test_z_conditioned_ensemble_equals_member_loop():
     for k in range(2):
         torch.testing.assert_close(out[k], _member_forward(net, k, obs, a, z), rtol=1e-5, atol=1e-5)
     # a precomputed (s, z) embedding gives the same output (the sharing used by the agent)
-    torch.testing.assert_close(net(obs, a, z, z_embedding=net.embed(obs, z)), out)
+    torch.testing.assert_close(net(obs, a, z, pre=net.precompute(obs, z)), out)
 
 
 def test_model_heads():
