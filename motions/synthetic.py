@@ -7,11 +7,16 @@ L_Shoulder_z < 0 (R_Shoulder_z > 0) swings the arm forward.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from humanoid_env.model import JOINT_NAMES, default_qpos, joint_ranges, load_model
 from motions.clip import FPS, Clip, from_qpos
 from motions.kinematics import put_on_floor
+
+if TYPE_CHECKING:
+    from motions.library import MotionLibrary
 
 _IDX = {name: i for i, name in enumerate(JOINT_NAMES)}
 ARMS_DOWN = 1.35  # shoulder angle that brings the arms alongside the body without touching it
@@ -157,7 +162,7 @@ def default_clips() -> list[Clip]:
     return [stand(), tpose(), arm_raise(), squat(), walk(), turn()]
 
 
-def default_library():
+def default_library() -> "MotionLibrary":
     """MotionLibrary over the built-in clips: the quickstart default when no motion folder is given."""
     from motions.library import MotionLibrary
 
