@@ -15,6 +15,7 @@ from typing import Literal, Union
 import numpy as np
 
 from fbcpr.prompt import Prompt, PromptError, builtin_clip_names
+from humanoid_env.model import CONTROL_HZ
 
 Kind = Literal["reward", "goal", "clip", "z"]
 #: A timeline item: a text spec (clip path, goal name or reward task) or an explicit z vector.
@@ -83,7 +84,7 @@ class Timeline:
         self.segments = list(segments)
 
     @classmethod
-    def build(cls, prompt: Prompt, items: Sequence[tuple[Item, float]], fps: float = 30.0) -> "Timeline":
+    def build(cls, prompt: Prompt, items: Sequence[tuple[Item, float]], fps: float = CONTROL_HZ) -> "Timeline":
         """Infer the z of every (item, seconds) pair; reward and goal zs are held, clips are tracked."""
         segments = []
         for item, seconds in items:
@@ -108,7 +109,7 @@ class Timeline:
         return cls(segments)
 
     @classmethod
-    def from_string(cls, prompt: Prompt, text: str, fps: float = 30.0) -> "Timeline":
+    def from_string(cls, prompt: Prompt, text: str, fps: float = CONTROL_HZ) -> "Timeline":
         """Parse "move-ego-0-2:4,jump-2:2,sitonground:4" and infer every segment's zs."""
         return cls.build(prompt, parse_timeline(text), fps=fps)
 
