@@ -97,6 +97,10 @@ def demo_command(
                          f"(env.name: humanoid, env.motions: synthetic), got {cfg.env.name!r}, {cfg.env.motions!r}")
     if device is not None:
         cfg.train.device = device
+    if steps is not None:
+        cfg.train.total_env_steps = steps
+    else:
+        cfg.train.total_env_steps = 10**12  # the time budget governs, however fast the machine
     library = default_library()
     get_reward(reward), goal_obs(goal)  # fail on bad names before training
     if clip not in library.names:

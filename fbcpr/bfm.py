@@ -323,7 +323,6 @@ def model_card(bfm: BFM, metrics: dict[str, float], repo_id: str) -> str:
     )
     cfg = config_to_dict(bfm.config) if isinstance(bfm.config, Config) else {"model": config_to_dict(bfm.config)}
     motions = cfg.get("env", {}).get("motions", "unknown")
-    steps = cfg.get("train", {}).get("total_env_steps")
     if metrics:
         rows = "\n".join(f"| {k} | {v:.4g} |" if isinstance(v, (int, float)) else f"| {k} | {v} |"
                          for k, v in sorted(metrics.items()))
@@ -341,7 +340,7 @@ A forward-backward model with conditional policy regularization (FB-CPR) for the
 `fbcpr` package: one latent-conditioned policy that is prompted zero-shot with a reward, a goal pose or a motion.
 
 - observation: {bfm.obs_dim} values, action: {bfm.action_dim} PD targets in [-1, 1], latent z: {bfm.z_dim} dims
-- trained on motions: `{motions}`{f"; configured training length {steps:,} environment steps" if steps else ""}
+- trained on motions: `{motions}`
 - reward-inference buffer included: {"yes" if has_buffer else "no (reward prompts unavailable)"}
 
 Check the license of the motion data the model was trained on before using it.
