@@ -101,6 +101,17 @@ def _reference_renderer(env: Any, clip: Any) -> Any:
     return frame
 
 
+def caption(frame: np.ndarray, text: str) -> np.ndarray:
+    """The frame with `text` in its top-left corner (Pillow ships with matplotlib and imageio)."""
+    from PIL import Image, ImageDraw
+
+    img = Image.fromarray(frame)
+    draw = ImageDraw.Draw(img)
+    draw.rectangle((0, 0, 8 + 7 * len(text), 18), fill=(0, 0, 0))
+    draw.text((4, 3), text, fill=(255, 255, 255))
+    return np.asarray(img)
+
+
 def write_frames(ep: Episode, path: Path) -> None:
     from humanoid_env.render import write_video
 
@@ -234,6 +245,11 @@ def timeline_command(
     if ep.diverged_at is not None:
         console.print(f"[yellow]simulation diverged at step {ep.diverged_at}[/]")
     if video is not None:
+        seg = timeline.segment_index()
+        # frame t shows the state reached by step t-1's action, taken under that step's prompt
+        labels = [timeline.segments[seg[max(t - 1, 0)]].label for t in range(len(ep.frames))]
+        ep.frames = [caption(f, Path(label).stem if label.endswith(".npz") else label)
+                     for f, label in zip(ep.frames, labels)]
         write_frames(ep, video)
 
 
