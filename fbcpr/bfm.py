@@ -238,16 +238,15 @@ class BFM:
 
 
 def check_reward_buffer(buf: dict[str, np.ndarray], obs_dim: int) -> None:
-    """next_obs (N, obs_dim), qpos (N, 76), qvel (N, 75), N >= 1, finite; CheckpointError naming what is wrong."""
-    from humanoid_env.model import NQ, NV
-
+    """next_obs (N, obs_dim) with N >= 1, qpos and qvel (N, ·), all finite; CheckpointError naming what is wrong."""
     missing = [k for k in REWARD_KEYS if k not in buf]
     if missing:
         raise CheckpointError(f"reward-inference buffer: missing arrays {missing}")
     n = len(buf["next_obs"])
-    for key, width in zip(REWARD_KEYS, (obs_dim, NQ, NV)):
+    for key in REWARD_KEYS:
         shape = np.shape(buf[key])
-        if len(shape) != 2 or shape[1] != width or shape[0] != n or n == 0:
+        width = obs_dim if key == "next_obs" else shape[-1] if len(shape) == 2 else "·"
+        if len(shape) != 2 or shape[0] != n or n == 0 or shape[1] != width:
             raise CheckpointError(f"reward-inference buffer: {key} has shape {shape}, expected ({n or 'N>0'}, {width})")
         if not np.isfinite(np.sum(buf[key], dtype=np.float64)):
             raise CheckpointError(f"reward-inference buffer: {key} contains NaN or inf")

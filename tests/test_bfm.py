@@ -81,13 +81,14 @@ def test_act_rejects_nan(bfm):
 
 
 @pytest.mark.parametrize("key, value, match", [
-    ("qpos", np.zeros((32, 70)), r"qpos has shape \(32, 70\), expected \(32, 76\)"),
+    ("qpos", np.zeros((31, 76)), r"qpos has shape \(31, 76\), expected \(32, 76\)"),
+    ("next_obs", np.zeros((32, 357)), r"next_obs has shape \(32, 357\), expected \(32, 358\)"),
     ("next_obs", np.zeros((0, 358)), "next_obs has shape"),
     ("qvel", np.full((32, 75), np.nan), "qvel contains NaN"),
 ])
 def test_malformed_reward_buffer_is_named(bfm, key, value, match):
     buf = {**bfm.reward_buffer, key: value}
-    if key == "next_obs":
+    if key == "next_obs" and len(value) == 0:
         buf = {k: v[:0] for k, v in buf.items()}
     bad = BFM(bfm.model, bfm.config, reward_buffer=buf)
     with pytest.raises(CheckpointError, match=match):
