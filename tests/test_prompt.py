@@ -202,3 +202,56 @@ def test_builtin_clip_names_work_as_motions(bfm):
     assert [s.kind for s in tl.segments] == ["clip", "goal"]
     with pytest.raises(PromptError, match="nor a built-in clip"):
         bfm.prompt.imitate("moonwalk")
+
+
+def test_prompts_steer_a_trained_toy_model(tmp_path):
+    """Real behaviour: train FB-CPR on the 2-D point mass for 15k steps (~20 s), load it as a BFM, and check that
+    goal, reward and tracking prompts beat random latents (the numbers at 40k steps are in docs/usage.md)."""
+    from pathlib import Path
+
+    from fbcpr.config import load_config
+    from fbcpr.toy import pointmass as pm
+    from fbcpr.trainer import Trainer
+
+    cfg = load_config(Path(__file__).parents[1] / "configs" / "toy.yaml")
+    cfg.train.total_env_steps = 15_000
+    Trainer(cfg, tmp_path / "toy", progress=False).run()
+    toy = BFM.load(tmp_path / "toy")
+    rng = np.random.default_rng(0)
+
+    def roll(z_at, n, reward=None, start=None, steps=100):
+        env = pm.PointMassVectorEnv(n, reward=reward, max_episode_steps=steps + 1)
+        obs, _ = env.reset(seed=1, options=None if start is None else {"qpos": start, "qvel": np.zeros_like(start)})
+        traj, ret = [], np.zeros(n)
+        for k in range(steps):
+            obs, r, *_ = env.step(toy.act(obs, z_at(k)))
+            traj.append(obs.copy())
+            ret += r
+        return np.stack(traj, 1), ret
+
+    def random_z():
+        return toy.project_z(rng.normal(size=toy.z_dim))
+
+    prompt_dist, random_dist = [], []
+    for g in pm.GOALS:
+        z_goal, z_rand = toy.prompt.goal(g), random_z()
+        prompt_dist.append(np.linalg.norm(roll(lambda k: z_goal, 8)[0][:, -1] - g, axis=1).mean())
+        random_dist.append(np.linalg.norm(roll(lambda k: z_rand, 8)[0][:, -1] - g, axis=1).mean())
+    assert np.mean(prompt_dist) < 0.7 * np.mean(random_dist)
+
+    prompt_ret = random_ret = 0.0
+    for task, fn in pm.TASKS.items():
+        z_task, z_rand = toy.prompt.reward(lambda o, a, q, v: fn(o)), random_z()
+        prompt_ret += roll(lambda k: z_task, 8, reward=task)[1].mean()
+        random_ret += roll(lambda k: z_rand, 8, reward=task)[1].mean()
+    assert prompt_ret > 2 * random_ret
+
+    track_err, imitate_err = [], []
+    for ref in pm.demo_paths().values():
+        zs, z_one = toy.prompt.track(ref), toy.prompt.imitate(ref)
+        start = ref[:1]
+        tracked = roll(lambda k: zs[k], 1, start=start, steps=len(ref) - 1)[0][0]
+        imitated = roll(lambda k: z_one, 1, start=start, steps=len(ref) - 1)[0][0]
+        track_err.append(np.linalg.norm(tracked - ref[1:], axis=1).mean())
+        imitate_err.append(np.linalg.norm(imitated - ref[1:], axis=1).mean())
+    assert np.mean(track_err) < 0.7 * np.mean(imitate_err)
