@@ -305,8 +305,8 @@ def _download(repo_id: str, revision: str | None, cache_dir: str | Path | None) 
     except RevisionNotFoundError:
         raise CheckpointError(f"{repo_id}: revision {revision!r} not found on the Hugging Face Hub") from None
     except (LocalEntryNotFoundError, IncompleteSnapshotError):
-        raise CheckpointError(f"{repo_id}: no such local directory, and the Hugging Face repo is not in the local "
-                              "cache (offline: HF_HUB_OFFLINE=1 or no network). Download it once while online.") from None
+        raise CheckpointError(f"{repo_id}: no such checkpoint directory, and as a Hugging Face repo id it is not in "
+                              "the local cache (HF_HUB_OFFLINE=1 or no network): download it once while online") from None
     except HfHubHTTPError as err:
         raise CheckpointError(f"{repo_id}: Hugging Face Hub error ({err})") from None
 
