@@ -120,7 +120,7 @@ def demo_command(
     console.rule("2/3 prompting and scoring against the floor baselines")
     agents = {"FB-CPR": bfm, "zero action": ZeroAgent(), "random action": RandomAgent(seed=0)}
     results = {name: evaluate(agent, "all", tasks=[reward, goal, clip], episodes=episodes, motions=library,
-                              steps=eval_steps, agent_name=name, show_progress=False)
+                              steps=eval_steps, agent_name=name)
                for name, agent in agents.items()}
     rows = {name: score_rows(res, reward, goal, clip) for name, res in results.items()}
 
