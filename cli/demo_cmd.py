@@ -119,10 +119,12 @@ def demo_command(
 
     console.rule("2/3 prompting and scoring against the floor baselines")
     agents = {"FB-CPR": bfm, "zero action": ZeroAgent(), "random action": RandomAgent(seed=0)}
-    results = {name: evaluate(agent, "all", tasks=[reward, goal, clip], episodes=episodes, motions=library,
-                              steps=eval_steps, agent_name=name)
-               for name, agent in agents.items()}
-    rows = {name: score_rows(res, reward, goal, clip) for name, res in results.items()}
+    rows = {}
+    for name, agent in agents.items():
+        console.print(f"scoring [bold]{name}[/]")
+        res = evaluate(agent, "all", tasks=[reward, goal, clip], episodes=episodes, motions=library,
+                       steps=eval_steps, agent_name=name)
+        rows[name] = score_rows(res, reward, goal, clip)
 
     console.rule("3/3 videos and summary")
     videos = write_demo_videos(bfm, reward, goal, library.clips[library.names.index(clip)], out / "videos", video)
