@@ -59,8 +59,8 @@ def plot(h: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    keys = ["goal_final_dist", "goal_proximity", "return/reach-top-right", "return/left-wall", "return/fast",
-            "return/circle-ccw", "track_error", "track_within_0.1"]
+    keys = ["goal_final_dist", "goal_proximity", "return/reach-top-right", "return/left-wall", "return/ring",
+            "return/bottom-strip", "track_error", "track_within_0.1"]
     fig, axes = plt.subplots(2, 4, figsize=(16, 7))
     for ax, k in zip(axes.flat, keys):
         ax.plot(h["steps"], [r[k] for r in h["trained"]], "o-", label="FB-CPR (step 0 = untrained)")

@@ -4,7 +4,8 @@
 
 Humanoid dimensions (obs 358, action 69). Each row shows the measured update next to a reference taken in
 the same run: square float32 matmuls of the same total FLOPs (counted with torch's FlopCounterMode on one
-update), i.e. what the update would cost if all its math ran at dense-GEMM speed.
+update), i.e. what the update would cost if all its math ran at dense float32 GEMM speed. `--bf16` adds
+rows for the optional bf16 autocast switch (`agent.bf16`; float32 master weights and optimiser).
 """
 from __future__ import annotations
 
@@ -21,10 +22,10 @@ SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}
 OBS, ACT = 358, 69
 
 
-def make(preset: str, device: str, compile_: bool) -> tuple[FBCPRAgent, dict, torch.Tensor]:
+def make(preset: str, device: str, compile_: bool, bf16: bool = False) -> tuple[FBCPRAgent, dict, torch.Tensor]:
     n = SIZES[preset]
     cfg = config_from_dict({"model": {"preset": preset, "obs_dim": OBS, "action_dim": ACT},
-                            "agent": {"batch_size": n, "compile": compile_}})
+                            "agent": {"batch_size": n, "compile": compile_, "bf16": bf16}})
     agent = FBCPRAgent(cfg.model, cfg.agent, device=device)
     g = torch.Generator().manual_seed(0)
     batch = {"obs": torch.randn(n, OBS, generator=g), "action": torch.rand(n, ACT, generator=g) * 2 - 1,
@@ -84,20 +85,23 @@ def main() -> None:
     ap.add_argument("--sizes", nargs="+", default=["tiny", "small", "paper-S"])
     ap.add_argument("--gpu", action="store_true", help="also time on CUDA")
     ap.add_argument("--compile", action="store_true", help="torch.compile the loss computation (GPU rows)")
+    ap.add_argument("--bf16", action="store_true", help="also time the bf16-autocast switch (agent.bf16)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     devices = ["cpu"] + (["cuda"] if args.gpu and torch.cuda.is_available() else [])
     print(f"torch {torch.__version__}, {args.threads} CPU threads" + (f", {torch.cuda.get_device_name()}" if "cuda" in devices else ""))
-    print(f"{'size':8s} {'device':6s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} {'ratio':>6s}")
+    print(f"{'size':8s} {'device':9s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} {'ratio':>6s}")
     for preset in args.sizes:
         flops = count_flops(preset)
         for dev in devices:
             reps = {"tiny": 20, "small": 10}.get(preset, 3) if dev == "cpu" else 20
-            agent, batch, windows = make(preset, dev, args.compile and dev != "cpu")
-            t = time_update(agent, batch, windows, dev, reps)
             ref = matmul_reference(flops, dev, 3)
-            print(f"{preset:8s} {dev:6s} {SIZES[preset]:5d} {flops / 1e9:7.1f} {t * 1e3:10.1f} {ref * 1e3:14.1f} {t / ref:6.2f}",
-                  flush=True)
+            for bf16 in (False, True) if args.bf16 else (False,):
+                agent, batch, windows = make(preset, dev, args.compile and dev != "cpu", bf16)
+                t = time_update(agent, batch, windows, dev, reps)
+                name = dev + ("+bf16" if bf16 else "")
+                print(f"{preset:8s} {name:9s} {SIZES[preset]:5d} {flops / 1e9:7.1f} {t * 1e3:10.1f} {ref * 1e3:14.1f} "
+                      f"{t / ref:6.2f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -90,7 +90,8 @@ class FBCPRAgent:
         expert = expert_windows.to(dev, torch.float32)
         expert_flat = expert.reshape(-1, expert.shape[-1])
         self.model.obs_normalizer.update(torch.cat([obs, expert_flat]))
-        out = self._compute(obs, action, next_obs, z_buf, terminated, expert)
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.cfg.bf16):
+            out = self._compute(obs, action, next_obs, z_buf, terminated, expert)
         total = out.pop("_total")
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)

@@ -84,6 +84,7 @@ class AgentConfig:
     z_online: float = _f(0.2, PROB)
     z_uniform: float = _f(0.2, PROB)
     compile: bool = _f(False)
+    bf16: bool = _f(False)
 
     def validate(self, prefix: str) -> None:
         total = self.z_expert + self.z_online + self.z_uniform

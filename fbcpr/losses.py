@@ -52,7 +52,8 @@ def implicit_reward(B_next: Tensor, z: Tensor, ridge: float = 1e-6) -> Tensor:
 
     Solved by Cholesky with a ridge of `ridge` x mean eigenvalue (keeps batches with n < d finite); an
     eigendecomposition-based pseudo-inverse costs more than a whole network forward here."""
-    with torch.no_grad():
+    with torch.no_grad(), torch.autocast(B_next.device.type, enabled=False):
+        B_next, z = B_next.float(), z.float()
         d = B_next.shape[1]
         cov = B_next.T @ B_next / B_next.shape[0]
         cov = cov + ridge * cov.diagonal().mean() * torch.eye(d, dtype=cov.dtype, device=cov.device)

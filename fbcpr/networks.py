@@ -57,7 +57,7 @@ class EnsembleLayerNorm(nn.Module):
 
     def forward(self, x: Tensor, detach_params: bool = False) -> Tensor:
         w, b = (self.weight.detach(), self.bias.detach()) if detach_params else (self.weight, self.bias)
-        return F.layer_norm(x, x.shape[-1:]) * w + b
+        return torch.addcmul(b, F.layer_norm(x, x.shape[-1:]), w)
 
 
 class Stack(nn.Module):
@@ -84,7 +84,7 @@ class Stack(nn.Module):
             if i == 0 and (i < last or self.final == "relu"):
                 x = torch.tanh(self.norm(x, detach_params))
             elif i < last or self.final == "relu":
-                x = F.relu(x)
+                x = F.relu(x, inplace=True)  # x is a fresh matmul output that nothing else saved
         return x
 
 
@@ -139,7 +139,7 @@ class _Head(nn.Module):
     def forward_from(self, h: Tensor, detach_params: bool = False) -> Tensor:
         """Continue from the first layer's pre-activation."""
         for layer in self.layers[1:]:
-            h = layer(F.relu(h), detach_params)
+            h = layer(F.relu(h, inplace=True), detach_params)
         return h
 
 

@@ -101,3 +101,14 @@ def test_update_is_deterministic_given_seed():
     batch, windows = make_batch(a1)
     m1, m2 = a1.update(batch, windows), a2.update(batch, windows)
     assert m1 == m2
+
+
+def test_bf16_switch_trains_in_float32_master_weights():
+    agent = make_agent(bf16=True)
+    batch, windows = make_batch(agent)
+    before = copy.deepcopy(agent.model.forward_map.state_dict())
+    metrics = agent.update(batch, windows)
+    assert all(math.isfinite(v) for v in metrics.values())
+    after = agent.model.forward_map.state_dict()
+    assert all(v.dtype == torch.float32 for v in after.values())
+    assert any(not torch.equal(before[k], after[k]) for k in after)

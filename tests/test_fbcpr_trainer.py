@@ -65,7 +65,7 @@ def test_checkpoint_contents_and_reward_buffer(tmp_path):
     ck = load_checkpoint(summary["checkpoint"])
     rb = ck.reward_buffer()
     assert rb["next_obs"].shape == (50, pm.OBS_DIM) and rb["qpos"].shape == (50, pm.NQ)
-    np.testing.assert_allclose(rb["next_obs"][:, :2], rb["qpos"], atol=1e-6)  # qpos is that of s'
+    np.testing.assert_allclose(rb["next_obs"], rb["qpos"], atol=1e-6)  # qpos is that of s'
     assert not ck.has("replay_buffer.safetensors")
     assert (tmp_path / "metrics.csv").exists() and any((tmp_path / "tb").iterdir())
     assert ck.model_config.obs_dim == pm.OBS_DIM
@@ -105,16 +105,16 @@ def test_replay_buffer_ring_and_memmap(tmp_path):
 def test_toy_env_api_and_feasible_demos():
     env = pm.PointMassVectorEnv(3, max_episode_steps=2)
     obs, info = env.reset(seed=0)
-    assert obs.shape == (3, 4) and info["qpos"].shape == (3, 2)
+    assert obs.shape == (3, 2) and info["qpos"].shape == (3, 2)
     obs1, r, term, trunc, info = env.step(np.ones((3, 2)))
     assert not trunc.any()
     obs2, r, term, trunc, info = env.step(np.ones((3, 2)))
     assert trunc.all() and info["_final_obs"].all()
-    np.testing.assert_allclose(info["final_obs"][:, :2], obs1[:, :2] + info["final_obs"][:, 2:], atol=1e-6)
+    np.testing.assert_allclose(info["final_obs"], np.minimum(obs1 + 0.1, 1.0), atol=1e-6)
+    np.testing.assert_allclose(info["final_qvel"], info["final_obs"] - obs1, atol=1e-6)
     for name, demo in pm.demo_paths().items():
-        v = demo[:, 2:].astype(np.float64)
-        a = (v[1:] - pm.DAMPING * v[:-1]) / pm.GAIN      # the action that realises each demo step
-        assert np.abs(a[1:]).max() <= 1.0, name
+        a = np.diff(demo.astype(np.float64), axis=0) / pm.STEP   # the action that realises each demo step
+        assert np.abs(a).max() <= 1.0 and np.abs(demo).max() <= 1.0, name
     with pytest.raises(ValueError, match="actions must have shape"):
         env.step(np.ones((2, 2)))
 

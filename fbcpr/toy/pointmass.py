@@ -1,8 +1,8 @@
-"""A 2-D point mass with demonstrations: a seconds-scale stand-in for the humanoid in tests and benchmarks.
+"""A 2-D point with demonstrations: a seconds-scale stand-in for the humanoid in tests and benchmarks.
 
-State: position p in [-1, 1]^2 and velocity v. Action a in [-1, 1]^2 accelerates with damping:
-v' = 0.8 v + 0.02 a (top speed 0.1 per step), p' = clip(p + v'), and hitting a wall stops that axis.
-Observation = qpos ++ qvel = (x, y, vx, vy). The batched env mirrors `VectorHumanoidEnv`'s API
+State: position p in [-1, 1]^2. Action a in [-1, 1]^2 moves it: p' = clip(p + 0.1 a) (kinematic control,
+so every behaviour is about positions and learns in CPU minutes). Observation = qpos = (x, y);
+qvel is the last displacement (kept for the qpos/qvel interface, not observed). The batched env mirrors `VectorHumanoidEnv`'s API
 (SAME_STEP autoreset, info["qpos"/"qvel"], info["final_obs"/"final_qpos"/"final_qvel"], "_final_obs").
 The demonstration library mirrors `motions.MotionLibrary` (windows, states, EMD priorities), and the tasks
 are rewards on the next observation, like the humanoid's reward registry.
@@ -19,11 +19,11 @@ from gymnasium.vector.utils import batch_space
 
 from motions.library import priorities_from_emd
 
-OBS_DIM, ACTION_DIM, NQ, NV = 4, 2, 2, 2
-DAMPING, GAIN = 0.8, 0.02
+OBS_DIM, ACTION_DIM, NQ, NV = 2, 2, 2, 2
+STEP = 0.1
 EPISODE_STEPS = 100
 
-#: Reward on next observations (N, 4) -> (N,) in [0, 1].
+#: Reward on next observations (N, 2) -> (N,) in [0, 1].
 ToyReward = Callable[[np.ndarray], np.ndarray]
 
 
@@ -34,9 +34,8 @@ def _tolerance(dist: np.ndarray, margin: float) -> np.ndarray:
 TASKS: dict[str, ToyReward] = {
     "reach-top-right": lambda o: _tolerance(np.linalg.norm(o[:, :2] - np.array([0.6, 0.6]), axis=1), 0.15),
     "left-wall": lambda o: (o[:, 0] < -0.7).astype(np.float64),
-    "fast": lambda o: np.minimum(1.0, np.linalg.norm(o[:, 2:], axis=1) / 0.08),
-    "circle-ccw": lambda o: _tolerance(np.abs(np.linalg.norm(o[:, :2], axis=1) - 0.5), 0.08)
-    * np.clip((o[:, 0] * o[:, 3] - o[:, 1] * o[:, 2]) / (0.5 * 0.04), 0.0, 1.0),
+    "ring": lambda o: _tolerance(np.abs(np.linalg.norm(o[:, :2], axis=1) - 0.5), 0.08),
+    "bottom-strip": lambda o: ((o[:, 1] < -0.5) & (np.abs(o[:, 0]) < 0.3)).astype(np.float64),
 }
 GOALS = np.array([[0.6, 0.6], [-0.6, 0.6], [0.0, -0.7], [-0.5, -0.5], [0.7, -0.2]])
 
@@ -47,16 +46,14 @@ def get_task(name: str) -> ToyReward:
     return TASKS[name]
 
 
-def dynamics(qpos: np.ndarray, qvel: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One batched step of the point mass."""
-    v = DAMPING * qvel + GAIN * np.clip(action, -1.0, 1.0)
-    p = qpos + v
-    hit = np.abs(p) > 1.0
-    return np.clip(p, -1.0, 1.0), np.where(hit, 0.0, v)
+def dynamics(qpos: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One batched step: new positions and the displacements actually made."""
+    p = np.clip(qpos + STEP * np.clip(action, -1.0, 1.0), -1.0, 1.0)
+    return p, p - qpos
 
 
 class UniformInit:
-    """Rest states uniformly in [-0.9, 0.9]^2 (the toy's 'fall' init: states no demonstration visits)."""
+    """Positions uniformly in [-0.9, 0.9]^2 (the toy's 'fall' init: includes states no demonstration visits)."""
 
     def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         return rng.uniform(-0.9, 0.9, size=(n, NQ)), np.zeros((n, NV))
@@ -98,7 +95,7 @@ class PointMassVectorEnv(VectorEnv):
         self.steps = np.zeros(num_envs, dtype=np.int64)
 
     def _obs(self) -> np.ndarray:
-        return np.concatenate([self.qpos, self.qvel], 1).astype(np.float32)
+        return self.qpos.astype(np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         if seed is not None:
@@ -115,7 +112,7 @@ class PointMassVectorEnv(VectorEnv):
         a = np.asarray(actions, dtype=np.float64)
         if a.shape != (self.num_envs, ACTION_DIM):
             raise ValueError(f"actions must have shape ({self.num_envs}, {ACTION_DIM}), got {a.shape}")
-        self.qpos, self.qvel = dynamics(self.qpos, self.qvel, a)
+        self.qpos, self.qvel = dynamics(self.qpos, a)
         obs = self._obs()
         reward = self.reward_fn(obs) if self.reward_fn is not None else np.zeros(self.num_envs)
         self.steps += 1
@@ -132,14 +129,8 @@ class PointMassVectorEnv(VectorEnv):
         return obs, np.asarray(reward, dtype=np.float64), terminated, truncated, info
 
 
-def _path_to_demo(p: np.ndarray) -> np.ndarray:
-    """Observations (T, 4) of a position path, with the velocities the dynamics imply (p_t - p_{t-1})."""
-    v = np.diff(p, axis=0, prepend=p[:1] - (p[1:2] - p[:1]))
-    return np.concatenate([p, v], 1).astype(np.float32)
-
-
 def demo_paths(length: int = 200) -> dict[str, np.ndarray]:
-    """Observation-only demonstrations: circles, a figure eight and two sweeps (feasible: |a| < 1)."""
+    """Observation-only demonstrations (T, 2): circles, a figure eight and two sweeps (steps < 0.1: feasible)."""
     t = np.arange(length, dtype=np.float64)
     w = 0.04 / 0.5
     paths = {
@@ -149,7 +140,7 @@ def demo_paths(length: int = 200) -> dict[str, np.ndarray]:
         "sweep-top": np.stack([0.8 * np.sin(0.05 * t), np.full(length, 0.6)], 1),
         "sweep-left": np.stack([np.full(length, -0.6), 0.8 * np.sin(0.05 * t + 1.0)], 1),
     }
-    return {k: _path_to_demo(v) for k, v in paths.items()}
+    return {k: v.astype(np.float32) for k, v in paths.items()}
 
 
 class DemoLibrary:
@@ -183,4 +174,4 @@ class DemoLibrary:
     def sample_states(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         m = self._pick(rng, n)
         obs = self._obs[self.offsets[m] + (rng.random(n) * self.lengths[m]).astype(int)].astype(np.float64)
-        return obs[:, :NQ], obs[:, NQ:]
+        return obs, np.zeros((n, NV))
