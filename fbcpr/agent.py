@@ -46,6 +46,9 @@ class FBCPRAgent:
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(seed)
         self.num_updates = 0
+        # torch.compile cannot differentiate twice, so the gradient penalty always runs eagerly
+        self._gradient_penalty = (torch.compiler.disable(losses.gradient_penalty) if agent_cfg.compile
+                                  else losses.gradient_penalty)
         self._compute = torch.compile(self._losses) if agent_cfg.compile else self._losses
 
     # ------------------------------------------------------------------------------------- z sampling
@@ -120,7 +123,7 @@ class FBCPRAgent:
         disc = losses.discriminator_loss(logits[: w * L], logits[w * L:])
         k = min(w * L, n)
         mix = torch.rand(k, generator=self.generator, device=self.device)
-        gp = losses.gradient_penalty(model.discriminator, s_exp[:k], z_exp_states[:k], obs_n[:k], z_buf[:k], mix)
+        gp = self._gradient_penalty(model.discriminator, s_exp[:k], z_exp_states[:k], obs_n[:k], z_buf[:k], mix)
 
         # B(s') once: FB loss, ortho loss, Sigma_B, online-goal relabeling
         B_next = model.backward_map(next_n)
