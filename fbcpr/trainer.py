@@ -18,6 +18,8 @@ import random
 import shutil
 import signal
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
@@ -308,21 +310,16 @@ class Trainer:
                 pass
         return old
 
-    def _progress(self, total: int) -> Any:
-        from contextlib import contextmanager
-
-        @contextmanager
-        def ctx():  # type: ignore[no-untyped-def]
-            if not self.progress_enabled:
-                yield None, None
-                return
-            cols = [TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,} steps"),
-                    TimeElapsedColumn(), TimeRemainingColumn()]
-            with Progress(*cols, transient=False) as progress:
-                task = progress.add_task("training", total=total, completed=self.env_steps)
-                yield progress, task
-
-        return ctx()
+    @contextmanager
+    def _progress(self, total: int) -> Iterator[tuple[Progress | None, Any]]:
+        """A rich progress bar over env steps (or nothing when disabled)."""
+        if not self.progress_enabled:
+            yield None, None
+            return
+        cols = [TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,} steps"),
+                TimeElapsedColumn(), TimeRemainingColumn()]
+        with Progress(*cols, transient=False) as progress:
+            yield progress, progress.add_task("training", total=total, completed=self.env_steps)
 
 
 def _episode_counter(env: Any) -> np.ndarray:

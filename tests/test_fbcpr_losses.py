@@ -1,7 +1,6 @@
 """Each loss of Algorithm 1 against a value computed by hand on a tiny batch."""
 import math
 
-import pytest
 import torch
 
 from fbcpr import losses
