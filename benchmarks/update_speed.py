@@ -4,7 +4,8 @@
 
 Humanoid dimensions (obs 358, action 69). Each row shows the measured update next to a reference taken in
 the same run: square float32 matmuls of the same total FLOPs (counted with torch's FlopCounterMode on one
-update), i.e. what the update would cost if all its math ran at dense float32 GEMM speed. `--bf16` adds
+update), i.e. what the update would cost if all its math ran at dense float32 GEMM speed, and a
+straightforward implementation of the same losses (one network at a time, no shared passes). `--bf16` adds
 rows for the optional bf16 autocast switch (`agent.bf16`; float32 master weights and optimiser).
 """
 from __future__ import annotations
@@ -15,6 +16,7 @@ import time
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
+from fbcpr import losses
 from fbcpr.agent import FBCPRAgent
 from fbcpr.config import config_from_dict
 
@@ -32,6 +34,69 @@ def make(preset: str, device: str, compile_: bool, bf16: bool = False) -> tuple[
              "next_obs": torch.randn(n, OBS, generator=g), "z": agent.model.sample_z(n).cpu(),
              "terminated": torch.zeros(n)}
     return agent, batch, torch.randn(n // 8, 8, OBS, generator=g)
+
+
+def straightforward_update(agent: FBCPRAgent, batch: dict, windows: torch.Tensor) -> None:
+    """Reference: the same losses computed the textbook way, one network at a time, each loss with its own
+    forward passes and its own backward (no shared passes, the actor loss backpropagates through F and Q's
+    weights, per-parameter Polyak loop)."""
+    m, cfg, t = agent.model, agent.cfg, agent.targets
+    obs, act, nxt, z_buf = batch["obs"], batch["action"], batch["next_obs"], batch["z"]
+    disc = cfg.discount * (1 - batch["terminated"])
+    m.obs_normalizer.update(torch.cat([obs, windows.reshape(-1, obs.shape[1])]))
+    s, s2, e = m.normalize(obs), m.normalize(nxt), m.normalize(windows)
+    w, L, o = e.shape
+    opt = agent.optimizers
+    z_e = agent.encode_windows(e).repeat_interleave(L, 0)
+    s_e = e.reshape(-1, o)
+    loss = losses.discriminator_loss(m.discriminator.logits(s_e, z_e), m.discriminator.logits(s, z_buf))
+    loss = loss + cfg.grad_penalty * losses.gradient_penalty(m.discriminator, s_e, z_e, s, z_buf, torch.rand(len(s)))
+    opt["discriminator"].zero_grad()
+    loss.backward()
+    opt["discriminator"].step()
+    with torch.no_grad():
+        z = agent.relabel(z_buf, m.backward_map(s2), agent.encode_windows(e))
+        a2 = m.actor_sample(s2, z)
+        F2 = t["forward_map"](s2, a2, z)
+        tM = losses.pessimistic(torch.einsum("mid,jd->mij", F2, t["backward_map"](s2)), cfg.fb_pessimism)
+        tFz = losses.pessimistic((F2 * z).sum(-1), cfg.fz_pessimism)
+    B2 = m.backward_map(s2)
+    Fsa = m.forward_map(s, act, z)
+    loss = losses.fb_loss(torch.einsum("mid,jd->mij", Fsa, B2), tM, disc) + cfg.ortho_coef * losses.ortho_loss(
+        m.backward_map(s2)) + cfg.fz_coef * losses.td_loss((Fsa * z).sum(-1), losses.implicit_reward(B2.detach(), z), tFz, disc)
+    opt["forward_map"].zero_grad()
+    opt["backward_map"].zero_grad()
+    loss.backward()
+    opt["forward_map"].step()
+    opt["backward_map"].step()
+    with torch.no_grad():
+        r = m.discriminator.logits(s, z)
+        tQ = losses.pessimistic(t["critic"](s2, m.actor_sample(s2, z), z)[..., 0], cfg.critic_pessimism)
+    loss = losses.td_loss(m.critic(s, act, z)[..., 0], r, tQ, disc)
+    opt["critic"].zero_grad()
+    loss.backward()
+    opt["critic"].step()
+    a = m.actor_sample(s, z)
+    loss = losses.actor_loss((m.forward_map(s, a, z) * z).sum(-1), m.critic(s, a, z)[..., 0], cfg.actor_reg_coef,
+                             cfg.actor_pessimism)
+    opt["actor"].zero_grad()
+    loss.backward()
+    opt["actor"].step()
+    with torch.no_grad():
+        for k in ("forward_map", "backward_map", "critic"):
+            for pt, p in zip(t[k].parameters(), getattr(m, k).parameters()):
+                pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
+
+
+def time_straightforward(agent: FBCPRAgent, batch: dict, windows: torch.Tensor, reps: int) -> float:
+    for _ in range(2):
+        straightforward_update(agent, batch, windows)
+    best = float("inf")
+    for _ in range(reps):
+        t = time.perf_counter()
+        straightforward_update(agent, batch, windows)
+        best = min(best, time.perf_counter() - t)
+    return best
 
 
 def sync(device: str) -> None:
@@ -90,18 +155,20 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     devices = ["cpu"] + (["cuda"] if args.gpu and torch.cuda.is_available() else [])
     print(f"torch {torch.__version__}, {args.threads} CPU threads" + (f", {torch.cuda.get_device_name()}" if "cuda" in devices else ""))
-    print(f"{'size':8s} {'device':9s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} {'ratio':>6s}")
+    print(f"{'size':8s} {'device':9s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} {'ratio':>6s} "
+          f"{'straightforward ms':>19s}")
     for preset in args.sizes:
         flops = count_flops(preset)
         for dev in devices:
             reps = {"tiny": 20, "small": 10}.get(preset, 3) if dev == "cpu" else 20
             ref = matmul_reference(flops, dev, 3)
+            naive = time_straightforward(*make(preset, "cpu", False), reps) * 1e3 if dev == "cpu" else float("nan")
             for bf16 in (False, True) if args.bf16 else (False,):
                 agent, batch, windows = make(preset, dev, args.compile and dev != "cpu", bf16)
                 t = time_update(agent, batch, windows, dev, reps)
                 name = dev + ("+bf16" if bf16 else "")
                 print(f"{preset:8s} {name:9s} {SIZES[preset]:5d} {flops / 1e9:7.1f} {t * 1e3:10.1f} {ref * 1e3:14.1f} "
-                      f"{t / ref:6.2f}", flush=True)
+                      f"{t / ref:6.2f} {naive:19.1f}", flush=True)
 
 
 if __name__ == "__main__":
