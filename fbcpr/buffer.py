@@ -66,8 +66,9 @@ class ReplayBuffer:
         idx = np.sort(rng.integers(0, self.size, size=n))  # sorted: sequential reads on memmaps
         return {k: torch.from_numpy(np.ascontiguousarray(self.data[k][idx])) for k in fields}
 
-    def reward_inference_sample(self, max_n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    def reward_inference_sample(self, max_n: int, rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
         """Up to max_n distinct transitions' (next_obs, qpos, qvel): the checkpoint's reward buffer."""
+        rng = np.random.default_rng(0) if rng is None else rng
         n = min(max_n, self.size)
         idx = np.sort(rng.choice(self.size, size=n, replace=False))
         return {"next_obs": np.asarray(self.data["next_obs"][idx]), "qpos": np.asarray(self.data["qpos"][idx]),

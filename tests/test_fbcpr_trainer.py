@@ -96,7 +96,9 @@ def test_replay_buffer_ring_and_memmap(tmp_path):
         assert set(buf.data["obs"][:, 0].tolist()) == {11, 12, 20, 21, 22}
         s = buf.sample(np.random.default_rng(0), 64)
         assert s["z"].shape == (64, 3) and s["z"].dtype == torch.float32
-        assert buf.reward_inference_sample(100, np.random.default_rng(0))["qpos"].shape == (5, 2)
+        assert buf.reward_inference_sample(100)["qpos"].shape == (5, 2)
+        sub = buf.reward_inference_sample(3, np.random.default_rng(1))
+        assert sub["next_obs"].shape == (3, 4) and len(np.unique(sub["next_obs"][:, 0])) == 3  # distinct rows
         with pytest.raises(ValueError, match="field 'action'"):
             buf.add({**batch, "action": np.zeros((3, 5))})
     assert (tmp_path / "mm" / "obs.npy").exists()
