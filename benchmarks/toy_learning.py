@@ -40,7 +40,8 @@ def main() -> None:
     t0 = time.perf_counter()
     every = cfg.train.eval_every
     while trainer.env_steps < cfg.train.total_env_steps:
-        trainer.run(max_env_steps=every)
+        if trainer.run(max_env_steps=every)["interrupted"]:
+            break
         res = evaluate(trainer.agent.model, seed=123)
         history["steps"].append(trainer.env_steps)
         history["trained"].append(res)

@@ -107,7 +107,10 @@ class Trainer:
 
     # --------------------------------------------------------------------------------- main loop
     def run(self, max_env_steps: int | None = None) -> dict[str, Any]:
-        """Train until total_env_steps (or max_env_steps more steps, or a stop signal); returns a summary."""
+        """Train until total_env_steps (or max_env_steps more steps, or a stop signal); returns a summary.
+
+        A stop signal is sticky: later calls return at once with `interrupted=True`, so loops over chunks
+        must check it."""
         tc = self.cfg.train
         stop_at = tc.total_env_steps if max_env_steps is None else min(tc.total_env_steps, self.env_steps + max_env_steps)
         handlers = self._install_signals()
