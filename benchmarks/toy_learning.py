@@ -68,7 +68,7 @@ def plot(h: dict, path: Path) -> None:
         ax.set_title(k)
         ax.set_xlabel("env steps")
     axes.flat[0].legend()
-    fig.suptitle("Point mass: zero-shot goal reaching, reward maximisation and demo imitation")
+    fig.suptitle("2-D point toy: zero-shot goal reaching, reward maximisation and demo imitation")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=80)
