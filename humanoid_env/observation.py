@@ -33,9 +33,20 @@ LAYOUT: dict[str, slice] = {
 
 
 def heading_rotation(root_xmat: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotations about z by the yaw of the root's forward (x) axis."""
-    fwd = root_xmat[..., :, 0]
-    yaw = np.arctan2(fwd[..., 1], fwd[..., 0])
+    """(..., 3, 3) rotations about z by the root's heading.
+
+    The heading is the horizontal part of the pelvis forward axis x plus 0.5*|x_z| times that of its up axis z.
+    With x alone the heading is undefined when lying flat (x vertical), exactly where the lying goals and
+    rewards live; the z term takes over there (the heading then points along the body, towards the head),
+    and vanishes when the pelvis is level, so any roll leaves a standing heading alone. No yaw-equivariant
+    heading is continuous everywhere: this one jumps only with the pelvis pitched ~65 deg back or ~115 deg
+    forward, poses passed through rather than held.
+    """
+    fwd, up = root_xmat[..., :, 0], root_xmat[..., :, 2]
+    weight = 0.5 * np.abs(fwd[..., 2])
+    hx = fwd[..., 0] + weight * up[..., 0]
+    hy = fwd[..., 1] + weight * up[..., 1]
+    yaw = np.arctan2(hy, hx)
     c, s = np.cos(yaw), np.sin(yaw)
     rot = np.zeros(yaw.shape + (3, 3))
     rot[..., 0, 0], rot[..., 0, 1] = c, -s

@@ -130,8 +130,25 @@ def load_clip(path: str | os.PathLike) -> Clip:
     if fps.ndim != 0 or fps.dtype.kind not in "iu":
         raise ClipFormatError(f"{path}: fps must be an integer scalar")
     validate_arrays(arrays["qpos"], arrays["qvel"], arrays["obs"], int(fps), where=str(path))
+    _check_obs_current(arrays["qpos"], arrays["qvel"], arrays["obs"], where=str(path))
     return Clip(
         qpos=arrays["qpos"].astype(np.float64), qvel=arrays["qvel"].astype(np.float64),
         obs=arrays["obs"].astype(np.float32), name=str(arrays["name"]), source=str(arrays["source"]),
         license=str(arrays["license"]), fps=int(fps),
     )
+
+
+def _check_obs_current(qpos: np.ndarray, qvel: np.ndarray, obs: np.ndarray, where: str) -> None:
+    """Recompute a few frames' observations: a clip made by an older observation function must be re-imported,
+    not silently fed to a model trained on the current one."""
+    from humanoid_env.model import load_model
+    from humanoid_env.observation import observe
+
+    frames = np.unique([0, len(qpos) // 2, len(qpos) - 1])
+    fresh = observe(load_model(), qpos[frames], qvel[frames])
+    err = np.abs(fresh - obs[frames]).max()
+    if err > 1e-3:
+        raise ClipFormatError(
+            f"{where}: obs do not match the humanoid's observation function (max difference {err:.3g}); "
+            "the clip was made by another version: re-import it"
+        )

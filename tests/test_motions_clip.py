@@ -102,6 +102,7 @@ def _good_arrays(clip: Clip) -> dict:
         (lambda a: a.update(obs=a["obs"][:-1]), "different lengths"),
         (lambda a: a.update(qpos=a["qpos"].astype(np.int64)), "qpos must be a floating-point array"),
         (lambda a: a.update(name=np.array([1, 2])), "name must be a string"),
+        (lambda a: a.update(obs=a["obs"] + np.float32(0.05)), "obs do not match the humanoid's observation function"),
     ],
 )
 def test_malformed_clip_files_are_rejected_with_the_file_and_the_problem(tmp_path, mutate, message):

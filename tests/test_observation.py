@@ -2,7 +2,7 @@ import mujoco
 import numpy as np
 
 from humanoid_env.model import NQ, NV, load_model
-from humanoid_env.observation import LAYOUT, OBS_DIM, observe
+from humanoid_env.observation import LAYOUT, OBS_DIM, heading_rotation, observe
 
 
 def _random_state(rng, model):
@@ -92,9 +92,34 @@ def test_velocities_match_finite_differences():
     mujoco.mj_kinematics(model, d)
     fd = (d.xpos[1:] - x1) / dt
     obs = observe(model, qpos, qvel)
-    fwd = r1[:, 0]
-    yaw = np.arctan2(fwd[1], fwd[0])
-    c, s = np.cos(yaw), np.sin(yaw)
-    rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    rz = heading_rotation(r1)
     lin = obs[LAYOUT["body_linvel"]].reshape(24, 3) @ rz.T
     np.testing.assert_allclose(lin, fd, atol=1e-3)
+
+
+def _pitched_state(model, pitch_deg):
+    """T-pose rotated about the world y axis (pitch), lifted clear of the floor."""
+    qpos = model.qpos0.copy()
+    half = np.deg2rad(pitch_deg) / 2
+    qpos[3:7] = [np.cos(half), 0.0, np.sin(half), 0.0]
+    qpos[2] = 1.0
+    return qpos, np.zeros(NV)
+
+
+def test_heading_is_continuous_through_lying_flat():
+    """Lying on the back or front (pelvis forward axis vertical) must not flip the heading frame."""
+    model = load_model()
+    for centre in (-90.0, 90.0):
+        a = observe(model, *_pitched_state(model, centre - 1.0))
+        b = observe(model, *_pitched_state(model, centre + 1.0))
+        assert np.linalg.norm(a[LAYOUT["pose"]] - b[LAYOUT["pose"]]) < 0.3
+
+
+def test_roll_leaves_standing_heading_alone():
+    model = load_model()
+    qpos, qvel = model.qpos0.copy(), np.zeros(NV)
+    half = np.deg2rad(30) / 2
+    qpos[3:7] = [np.cos(half), np.sin(half), 0.0, 0.0]  # 30 deg roll about the forward axis
+    obs = observe(model, qpos, qvel)
+    pelvis_forward = obs[LAYOUT["body_rot"]][:3]
+    np.testing.assert_allclose(pelvis_forward, [1.0, 0.0, 0.0], atol=1e-6)

@@ -20,7 +20,7 @@ from motions.retarget import Retargeter, RetargetReport
 
 FORMATS = ("amass", "deepmimic", "bvh")
 #: Bump when a converter's output changes, so cached conversions are not reused.
-CONVERTER_VERSION = "1"
+CONVERTER_VERSION = "2"
 
 
 class UnknownFormatError(ValueError):
