@@ -22,19 +22,14 @@ DEFAULT_CONFIG = "quickstart.yaml"
 
 
 def find_config(path: Optional[Path]) -> Path:
-    """The given config, else configs/quickstart.yaml in the working directory or next to the package sources."""
+    """The given config, else the quickstart config shipped inside the package (fbcpr.configs)."""
     if path is not None:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: config file not found")
         return path
-    import fbcpr
+    from importlib import resources
 
-    candidates = [Path("configs") / DEFAULT_CONFIG, Path(fbcpr.__file__).resolve().parents[1] / "configs" / DEFAULT_CONFIG]
-    for c in candidates:
-        if c.is_file():
-            return c
-    raise FileNotFoundError(f"configs/{DEFAULT_CONFIG} not found (looked in {', '.join(map(str, candidates))}); "
-                            "pass --config")
+    return Path(str(resources.files("fbcpr.configs") / DEFAULT_CONFIG))
 
 
 def train_for(trainer: Any, seconds: float | None, steps: int | None) -> dict[str, Any]:
@@ -68,7 +63,7 @@ def score_rows(results: dict[str, Any], reward: str, goal: str, clip: str) -> li
 
 @cli_errors
 def demo_command(
-    config: Optional[Path] = typer.Option(None, "--config", help="Run config (default: configs/quickstart.yaml)."),
+    config: Optional[Path] = typer.Option(None, "--config", help="Run config (default: the shipped configs/quickstart.yaml)."),
     minutes: float = typer.Option(5.0, "--minutes", min=0.05, help="Training time budget."),
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Train exactly this many env steps instead."),
     out: Path = typer.Option(Path("runs/demo"), "--out", help="Run directory (checkpoints, videos, summary)."),

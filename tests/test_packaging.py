@@ -1,22 +1,25 @@
-"""A built wheel must contain every sub-package: pyproject lists them by hand (cli/ maps onto fbcpr.cli)."""
+"""A built wheel must contain every sub-package: pyproject lists them by hand (cli/ maps onto fbcpr.cli, configs/
+onto fbcpr.configs)."""
 import tomllib
+from importlib import resources
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _declared() -> set[str]:
-    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
-    return set(cfg["packages"]), cfg["package-dir"]
+MAPPED = {"cli": "fbcpr.cli", "configs": "fbcpr.configs"}
 
 
 def test_every_package_directory_is_declared():
-    declared, package_dir = _declared()
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     found = set()
-    for top in ("fbcpr", "humanoid_env", "motions", "cli"):
+    for top in ("fbcpr", "humanoid_env", "motions", *MAPPED):
         for init in (ROOT / top).rglob("__init__.py"):
             parts = init.parent.relative_to(ROOT).parts
-            name = ".".join(parts)
-            found.add("fbcpr.cli" + name[3:] if parts[0] == "cli" else name)
+            found.add(".".join((MAPPED.get(parts[0], parts[0]), *parts[1:])))
+    declared = set(cfg["packages"])
     assert found == declared, f"missing from pyproject: {found - declared}; stale: {declared - found}"
-    assert package_dir == {"fbcpr.cli": "cli"}
+    assert cfg["package-dir"] == {v: k for k, v in MAPPED.items()}
+
+
+def test_shipped_configs_are_importable_resources():
+    names = {p.name for p in resources.files("fbcpr.configs").iterdir() if p.name.endswith(".yaml")}
+    assert {"quickstart.yaml", "small.yaml", "paper-S.yaml", "paper-M.yaml"} <= names
