@@ -11,6 +11,7 @@ from typing import Protocol, Sequence
 import mujoco
 import numpy as np
 
+from humanoid_env.geometry import lowest_point
 from humanoid_env.model import NQ, NV, default_qpos, joint_ranges, load_model
 
 
@@ -26,27 +27,10 @@ class _Geometry:
     def __init__(self) -> None:
         self.model = load_model()
         self.data = mujoco.MjData(self.model)
-        m = self.model
-        self.geoms = np.flatnonzero(m.geom_bodyid > 0)
-        self.types = m.geom_type[self.geoms]
-        self.size = m.geom_size[self.geoms]
 
     def lowest_z(self, qpos: np.ndarray) -> np.ndarray:
-        """(n,) lowest z over all body geoms (capsules, boxes, spheres) for each pose in qpos (n,76)."""
-        out = np.empty(len(qpos))
-        g, s = self.geoms, self.size
-        for i, q in enumerate(qpos):
-            self.data.qpos[:] = q
-            mujoco.mj_kinematics(self.model, self.data)
-            z = self.data.geom_xpos[g, 2]
-            rz = np.abs(self.data.geom_xmat[g].reshape(-1, 3, 3)[:, 2, :])  # |world z| of each local axis
-            low = np.where(
-                self.types == mujoco.mjtGeom.mjGEOM_BOX,
-                z - (rz * s).sum(1),
-                np.where(self.types == mujoco.mjtGeom.mjGEOM_CAPSULE, z - rz[:, 2] * s[:, 1] - s[:, 0], z - s[:, 0]),
-            )
-            out[i] = low.min()
-        return out
+        """(n,) lowest z of the body for each pose in qpos (n,76)."""
+        return lowest_point(self.model, qpos, self.data)
 
     def self_penetration(self, qpos: np.ndarray) -> np.ndarray:
         """(n,) deepest penetration (m, >= 0) between body geoms, floor excluded, for each pose in qpos (n,76)."""

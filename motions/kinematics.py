@@ -5,6 +5,9 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from humanoid_env.geometry import geom_bottoms as geom_bottoms  # re-exported for the importers and their tests
+from humanoid_env.geometry import lowest_point
+
 
 def finite_difference_qvel(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarray:
     """(T,nv) velocities by central differences of (T,nq) positions.
@@ -95,31 +98,6 @@ def repeat_loop(qpos: np.ndarray, cycles: int) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def geom_bottoms(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
-    """(T, ngeom) lowest world z of every body geom (floor excluded: +inf) along a (T,nq) trajectory.
-
-    Exact for the sphere, capsule and box geoms our humanoid is made of; used to put feet on the floor.
-    """
-    qpos = np.atleast_2d(np.asarray(qpos, dtype=np.float64))
-    data = mujoco.MjData(model)
-    size = model.geom_size
-    gtype = model.geom_type
-    out = np.full((qpos.shape[0], model.ngeom), np.inf)
-    body_geoms = model.geom_bodyid > 0
-    for t in range(qpos.shape[0]):
-        data.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(model, data)
-        z = data.geom_xpos[:, 2]
-        zrow = data.geom_xmat.reshape(-1, 3, 3)[:, 2, :]  # z components of the geom's local axes
-        low = np.where(
-            gtype == mujoco.mjtGeom.mjGEOM_BOX, z - np.abs(zrow * size).sum(axis=1),
-            np.where(gtype == mujoco.mjtGeom.mjGEOM_CAPSULE, z - np.abs(zrow[:, 2]) * size[:, 1] - size[:, 0],
-                     z - size[:, 0]),
-        )
-        out[t, body_geoms] = low[body_geoms]
-    return out
-
-
 def foot_geom_ids(model: mujoco.MjModel) -> np.ndarray:
     """Geom ids of the four foot segments (ankle and toe boxes of both feet)."""
     names = ("L_Ankle", "L_Toe", "R_Ankle", "R_Toe")
@@ -129,5 +107,5 @@ def foot_geom_ids(model: mujoco.MjModel) -> np.ndarray:
 def put_on_floor(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
     """Shift the root height per frame so the lowest body point touches z = 0 (for grounded synthetic clips)."""
     qpos = np.array(qpos, dtype=np.float64)
-    qpos[:, 2] -= geom_bottoms(model, qpos).min(axis=1)
+    qpos[:, 2] -= lowest_point(model, qpos)
     return qpos

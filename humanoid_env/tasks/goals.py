@@ -14,6 +14,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from humanoid_env.geometry import lowest_point
 from humanoid_env.model import JOINT_NAMES, N_SUBSTEPS, NV, load_model
 from humanoid_env.observation import observe
 
@@ -126,21 +127,6 @@ def _root_quat(pose: GoalPose) -> np.ndarray:
         mujoco.mju_axisAngle2Quat(q, np.asarray(axis, dtype=np.float64), np.deg2rad(deg))
         mujoco.mju_mulQuat(quat, quat.copy(), q)
     return quat
-
-
-def lowest_point(model: mujoco.MjModel, qpos: np.ndarray) -> float:
-    """Lowest world z over the body's geoms (capsules, boxes, spheres) at `qpos`, by kinematics."""
-    data = mujoco.MjData(model)
-    data.qpos[:] = qpos
-    mujoco.mj_kinematics(model, data)
-    body = model.geom_bodyid > 0
-    z = data.geom_xpos[body, 2]
-    zrow = data.geom_xmat.reshape(-1, 3, 3)[body, 2, :]
-    size, gtype = model.geom_size[body], model.geom_type[body]
-    low = np.where(gtype == mujoco.mjtGeom.mjGEOM_BOX, z - np.abs(zrow * size).sum(1),
-                   np.where(gtype == mujoco.mjtGeom.mjGEOM_CAPSULE, z - np.abs(zrow[:, 2]) * size[:, 1] - size[:, 0],
-                            z - size[:, 0]))
-    return float(low.min())
 
 
 def pose_qpos(pose: GoalPose, model: mujoco.MjModel | None = None) -> np.ndarray:
