@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from fbcpr.config import EnvConfig
+from fbcpr.latents import tracking_sums
 from fbcpr.networks import project_sphere
 
 
@@ -91,12 +92,7 @@ def tracking_latents(model: Any, obs_seq: np.ndarray, seq_length: int) -> torch.
     """z_t ∝ sum_{j=t+1}^{t+L} B(s_j) for every t of a reference (T, obs_dim); the window shrinks at the end."""
     with torch.no_grad():
         b = model.backward(torch.as_tensor(obs_seq, dtype=torch.float32, device=model.device))
-        csum = torch.cat([torch.zeros_like(b[:1]), b.cumsum(0)])        # csum[k] = sum_{j<k} b_j
-        T = b.shape[0]
-        t = torch.arange(T, device=b.device)
-        hi = torch.clamp(t + seq_length + 1, max=T)
-        lo = torch.clamp(t + 1, max=T - 1)  # the last step keeps its own state as target
-        return project_sphere(csum[hi] - csum[lo])
+        return project_sphere(tracking_sums(b, seq_length))
 
 
 def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: int, max_steps: int) -> list[np.ndarray]:

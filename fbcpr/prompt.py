@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING, Literal, Union
 import numpy as np
 import torch
 
+from fbcpr.latents import TEMPERATURE, reward_weights, tracking_sums
+
 if TYPE_CHECKING:
     from fbcpr.bfm import BFM
     from motions.clip import Clip
@@ -32,7 +34,6 @@ GoalSpec = Union[str, np.ndarray, torch.Tensor, Sequence[float]]
 #: A motion given as a Clip, a clip file path, a built-in clip name, or an (T, 358) observation sequence.
 MotionSpec = Union["Clip", str, Path, np.ndarray, torch.Tensor]
 
-TEMPERATURE = 10.0
 N_REWARD_SAMPLES = 100_000
 
 
@@ -74,17 +75,13 @@ class Prompt:
             raise PromptError(f"reward {label!r} returned shape {r.shape}, expected ({b.shape[0]},)")
         if not np.all(np.isfinite(r)):
             raise PromptError(f"reward {label!r} returned non-finite values on the reward-inference buffer")
-        if method == "weighted":
-            weights = np.exp(temperature * (r - r.max())) * r  # the exp(τ·max r) factor cancels in the projection
-        else:
-            weights = r / r.shape[0]
-        if not np.any(weights != 0):
+        w = reward_weights(torch.as_tensor(r), temperature if method == "weighted" else None)
+        if not torch.any(w != 0):
             raise PromptError(
                 f"reward {label!r} is zero on all {r.shape[0]} buffer samples: the buffer holds no state it "
                 "rewards, so there is nothing to infer z from"
             )
-        w = torch.as_tensor(weights, dtype=b.dtype, device=b.device)
-        return self._project(w @ b)
+        return self._project(w.to(dtype=b.dtype, device=b.device) @ b)
 
     # ------------------------------------------------------------------------------------------- goals
     def goal(self, target: GoalSpec) -> np.ndarray:
@@ -95,13 +92,8 @@ class Prompt:
     def track(self, motion: MotionSpec) -> np.ndarray:
         """(T-1, d): one z per step t, the ER_FB of the next L states s_{t+1..t+L}, clipped at the clip end."""
         obs = motion_observations(motion, self.bfm.obs_dim, min_length=2)
-        b = self.bfm.backward(obs[1:], as_tensor=True).double()
-        steps, seq_len = b.shape[0], self.bfm.sequence_length
-        csum = torch.cat([torch.zeros_like(b[:1]), b.cumsum(0)])
-        start = torch.arange(steps, device=b.device)
-        end = torch.clamp(start + seq_len, max=steps)
-        window = (csum[end] - csum[start]) / (end - start).unsqueeze(1)
-        return self._project(window)
+        b = self.bfm.backward(obs, as_tensor=True).double()
+        return self._project(tracking_sums(b, self.bfm.sequence_length)[:-1])
 
     def imitate(self, motion: MotionSpec) -> np.ndarray:
         """One z for a whole motion: ER_FB, the mean of B over all its states."""

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from fbcpr.envs import tracking_latents
+from fbcpr.latents import TEMPERATURE, reward_weights
 from fbcpr.networks import project_sphere
 from fbcpr.toy import pointmass as pm
 
@@ -43,13 +44,12 @@ def goal_reaching(model: Any, rng: np.random.Generator) -> dict[str, float]:
             "goal_proximity": float((d < GOAL_RADIUS).mean())}
 
 
-def reward_z(model: Any, task: str, rng: np.random.Generator, temperature: float = 10.0) -> torch.Tensor:
+def reward_z(model: Any, task: str, rng: np.random.Generator, temperature: float = TEMPERATURE) -> torch.Tensor:
     """Weighted-regression z for a task over states spread uniformly over the arena."""
     obs = rng.uniform(-1, 1, size=(REWARD_SAMPLES, pm.OBS_DIM)).astype(np.float32)
     r = torch.as_tensor(pm.get_task(task)(obs), dtype=torch.float32)
     b = model.backward(torch.as_tensor(obs))
-    w = torch.softmax(temperature * r, 0) * r
-    return project_sphere((w[:, None] * b).sum(0, keepdim=True))
+    return project_sphere((reward_weights(r, temperature) @ b)[None])
 
 
 def reward_returns(model: Any, rng: np.random.Generator) -> dict[str, float]:
