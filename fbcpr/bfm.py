@@ -183,9 +183,12 @@ class BFM:
         if isinstance(x, torch.Tensor):
             return x.to(device=self.device, dtype=torch.float32)
         try:
-            return torch.as_tensor(np.asarray(x, dtype=np.float32), device=self.device)
+            arr = np.asarray(x, dtype=np.float32)
         except (TypeError, ValueError) as err:
             raise ValueError(f"{name}: expected a numpy array or torch tensor of numbers ({err})") from None
+        if not arr.flags.writeable:  # read-only views (np.broadcast_to, memmaps): torch wants memory it may write
+            arr = arr.copy()
+        return torch.as_tensor(arr, device=self.device)
 
     # ------------------------------------------------------------------------- agent protocol
     def reward_z(self, task: Any, **kwargs: Any) -> np.ndarray:

@@ -73,6 +73,21 @@ def test_act_rejects_wrong_shapes(bfm, obs_shape, z_shape, match):
         bfm.act(np.zeros(obs_shape, np.float32), np.ones(z_shape, np.float32))
 
 
+def test_act_accepts_read_only_arrays_quietly(bfm):
+    """A z broadcast over a batch is a read-only view; act must take it without torch's non-writable warning."""
+    import warnings
+
+    rng = np.random.default_rng(2)
+    obs = rng.normal(size=(4, 358)).astype(np.float32)
+    z = bfm.project_z(rng.normal(size=bfm.z_dim))
+    view = np.broadcast_to(z, (4, bfm.z_dim))
+    assert not view.flags.writeable
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = bfm.act(obs, view)
+    np.testing.assert_allclose(out, bfm.act(obs, np.tile(z, (4, 1))), atol=1e-6)
+
+
 def test_act_rejects_nan(bfm):
     obs = np.zeros(358, np.float32)
     obs[3] = np.nan
