@@ -42,28 +42,30 @@ def json_safe(obj: Any) -> Any:
     return obj
 
 
+def _table(title: str, columns: tuple[str, ...], text_columns: int = 1) -> Table:
+    """A rich table whose first `text_columns` columns are names (left) and the rest numbers (right)."""
+    table = Table(title=title)
+    for i, col in enumerate(columns):
+        table.add_column(col, justify="left" if i < text_columns else "right")
+    return table
+
+
 def print_report(results: dict[str, Any], console: Console | None = None) -> None:
     """Rich tables: one row per task, then one per category / suite."""
     con = console or Console()
     title = f"{results.get('agent', 'agent')}: {results.get('episodes')} episodes x {results.get('steps')} steps"
     if "reward" in results:
-        table = Table(title=f"Reward tasks ({title})")
-        for col in ("task", "category", "return", "std"):
-            table.add_column(col, justify="left" if col in ("task", "category") else "right")
+        table = _table(f"Reward tasks ({title})", ("task", "category", "return", "std"), text_columns=2)
         for task, r in results["reward"].items():
             table.add_row(task, r["category"], f"{r['return_mean']:.1f}", f"{r['return_std']:.1f}")
         con.print(table)
-        cat = Table(title="Reward categories")
-        for col in ("category", "tasks", "mean return"):
-            cat.add_column(col, justify="left" if col == "category" else "right")
+        cat = _table("Reward categories", ("category", "tasks", "mean return"))
         for c, v in results["summary"]["reward"]["categories"].items():
             cat.add_row(c, str(v["tasks"]), f"{v['mean_return']:.1f}")
         cat.add_row("all", str(len(results["reward"])), f"{results['summary']['reward']['mean_return']:.1f}")
         con.print(cat)
     if "goal" in results:
-        table = Table(title=f"Goal poses ({title})")
-        for col in ("goal", "success", "proximity", "min d_smpl"):
-            table.add_column(col, justify="left" if col == "goal" else "right")
+        table = _table(f"Goal poses ({title})", ("goal", "success", "proximity", "min d_smpl"))
         for name, g in results["goal"].items():
             md = g["min_distance"]
             table.add_row(name, f"{g['success']:.2f}", f"{g['proximity']:.3f}", "-" if md is None else f"{md:.2f}")
@@ -71,9 +73,7 @@ def print_report(results: dict[str, Any], console: Console | None = None) -> Non
         table.add_row("all", f"{s['success']:.2f}", f"{s['proximity']:.3f}", "")
         con.print(table)
     if "tracking" in results:
-        table = Table(title=f"Tracking ({results.get('agent', 'agent')})")
-        for col in ("clip", "frames", "success", "EMD"):
-            table.add_column(col, justify="left" if col == "clip" else "right")
+        table = _table(f"Tracking ({results.get('agent', 'agent')})", ("clip", "frames", "success", "EMD"))
         for name, t in results["tracking"].items():
             table.add_row(name, str(t["frames"]), f"{t['success']:.0f}", f"{t['emd']:.3f}")
         s = results["summary"]["tracking"]
