@@ -17,7 +17,8 @@ import time
 import mujoco
 import numpy as np
 
-from humanoid_env.env import HumanoidEnv, pd_targets
+from humanoid_env.actions import ActionMap
+from humanoid_env.env import HumanoidEnv
 from humanoid_env.inits import DefaultInit, MocapInit
 from humanoid_env.model import N_SUBSTEPS, load_model
 from humanoid_env.vector import VectorHumanoidEnv
@@ -49,8 +50,7 @@ def main() -> None:
     qpos0, qvel0 = np.tile(qpos1, (args.envs, 1)), np.tile(qvel1, (args.envs, 1))
     actions = rng.uniform(-1, 1, (args.steps, args.envs, 69)).astype(np.float32)
     model = load_model()
-    mid, half = pd_targets(model)
-    ctrl = mid + actions.astype(np.float64) * half
+    ctrl = ActionMap(model).to_ctrl(actions.astype(np.float64))
 
     data = mujoco.MjData(model)
     env = HumanoidEnv(max_episode_steps=EPISODE)

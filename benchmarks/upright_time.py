@@ -12,7 +12,7 @@ import argparse
 
 import numpy as np
 
-from fbcpr.evaluation.agents import make_agent
+from fbcpr.evaluation.agents import action_mapping, make_agent
 from humanoid_env.inits import DefaultInit, FallInit
 from humanoid_env.model import CONTROL_HZ
 from humanoid_env.vector import VectorHumanoidEnv
@@ -22,7 +22,7 @@ FALLEN, STANDING = 0.6, 0.8
 
 def rollout(agent, init, episodes: int, steps: int, seed: int) -> np.ndarray:
     """Pelvis heights (steps, episodes) under the stand prompt; one episode per env, no auto-reset within."""
-    env = VectorHumanoidEnv(episodes, init=init, max_episode_steps=steps + 1)
+    env = VectorHumanoidEnv(episodes, init=init, max_episode_steps=steps + 1, action_mapping=action_mapping(agent))
     obs, _ = env.reset(seed=seed)
     z = np.broadcast_to(agent.reward_z("move-ego-0-0"), (episodes, agent.z_dim))
     heights = np.empty((steps, episodes))

@@ -8,6 +8,7 @@ from fbcpr.cli import eval_cmd
 from fbcpr.cli import common, demo_cmd, prompt_cmd
 from fbcpr.cli import train_cmd
 from fbcpr.cli import motions_cmd
+from fbcpr.cli import export_cmd
 
 app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid.", no_args_is_help=True)
 
@@ -19,6 +20,7 @@ prompt_cmd.register(app)
 demo_cmd.register(app)
 train_cmd.register(app)
 motions_cmd.register(app)
+export_cmd.register(app)
 
 
 def main() -> None:

@@ -49,10 +49,12 @@ def require_renderer() -> None:
 def rollout(bfm: Any, zs: np.ndarray, seed: int = 0, start: tuple[np.ndarray, np.ndarray] | None = None,
             video: bool = False, reference: Any = None, label: str = "rollout") -> Episode:
     """Run the policy for len(zs) steps with z = zs[t] at step t; frames (agent | reference) when `video`."""
+    from fbcpr.evaluation.agents import action_mapping
     from humanoid_env.env import HumanoidEnv
 
     steps = len(zs)
-    env = HumanoidEnv(max_episode_steps=max(steps, 1), render_mode="rgb_array" if video else None)
+    env = HumanoidEnv(max_episode_steps=max(steps, 1), render_mode="rgb_array" if video else None,
+                      action_mapping=action_mapping(bfm))
     ref_frame = _reference_renderer(env, reference) if video and reference is not None else None
     ep = Episode()
     try:

@@ -31,6 +31,7 @@ from fbcpr.checkpoint import (
 from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict
 from fbcpr.model import FBCPRModel
 from fbcpr.prompt import Prompt
+from humanoid_env.actions import DEFAULT_ACTION_MAPPING
 
 ArrayLike = TypeVar("ArrayLike", torch.Tensor, np.ndarray)
 
@@ -38,6 +39,9 @@ ArrayLike = TypeVar("ArrayLike", torch.Tensor, np.ndarray)
 HUB_FILES = [MODEL_FILE, CONFIG_FILE, MANIFEST_FILE, REWARD_FILE, "README.md"]
 _REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[\w.-]+$")
 _CHUNK = 16_384
+#: The shipped inference checkpoint; "pretrained" names it wherever a checkpoint path is accepted.
+PRETRAINED_NAME = "pretrained"
+PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 
 
 class BFM:
@@ -77,6 +81,11 @@ class BFM:
         ckpt = load_checkpoint(path, device=device)
         return cls(ckpt.model, ckpt.config, source=str(path_or_repo_id), checkpoint=ckpt)
 
+    @classmethod
+    def pretrained(cls, device: str | torch.device = "cpu") -> "BFM":
+        """The model that ships inside the package (`fbcpr/pretrained/`, its model card is the README there)."""
+        return cls.load(PRETRAINED_DIR, device=device)
+
     # ---------------------------------------------------------------------------------- properties
     @property
     def device(self) -> torch.device:
@@ -93,6 +102,11 @@ class BFM:
     @property
     def z_dim(self) -> int:
         return int(self.model.cfg.z_dim)
+
+    @property
+    def action_mapping(self) -> str:
+        """How the env must map this model's actions to PD targets (`humanoid_env.actions`), as it was trained."""
+        return self.config.env.action_mapping if isinstance(self.config, Config) else DEFAULT_ACTION_MAPPING
 
     @property
     def sequence_length(self) -> int:
@@ -208,9 +222,19 @@ class BFM:
         return self.prompt.imitate(motion)
 
     # ---------------------------------------------------------------------------------- saving
-    def save(self, path: str | Path) -> Path:
-        """Write an inference checkpoint (model, config, reward-inference buffer) atomically at `path`."""
-        return save_checkpoint(path, self.model, self.config, reward_buffer=self.reward_buffer)
+    def save(self, path: str | Path, reward_samples: int | None = None, half: bool = False) -> Path:
+        """Write an inference checkpoint (model, config, reward-inference buffer) atomically at `path`.
+
+        `reward_samples` keeps a seeded subsample of the reward buffer and `half` stores it as float16: the
+        compact form a checkpoint that ships with a package or an app needs (docs/results.md measures what a
+        smaller buffer costs in prompt quality)."""
+        buf = self.reward_buffer
+        if buf is not None and reward_samples is not None:
+            if reward_samples < 1:
+                raise ValueError(f"reward_samples must be >= 1, got {reward_samples}")
+            buf = self.reward_samples(reward_samples, seed=0)[0]
+        return save_checkpoint(path, self.model, self.config, reward_buffer=buf,
+                               reward_dtype=torch.float16 if half else torch.float32)
 
     def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None, repo_id: str | None = None) -> Path:
         """The folder `push_to_hub` uploads: an inference checkpoint plus a README.md model card."""
@@ -262,8 +286,13 @@ def _all_finite(x: torch.Tensor) -> bool:
 
 
 def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: str | Path | None = None) -> Path:
-    """A local checkpoint directory as is, or a Hub repo id downloaded into (or found in) the HF cache."""
+    """A local checkpoint directory as is, `pretrained` (the shipped model, unless a local folder has that name),
+    or a Hub repo id downloaded into (or found in) the HF cache."""
     path = Path(src).expanduser()
+    if str(src) == PRETRAINED_NAME and not path.exists():
+        if not (PRETRAINED_DIR / MANIFEST_FILE).is_file():
+            raise CheckpointError(f"{PRETRAINED_DIR}: the pretrained model is missing from this installation")
+        return PRETRAINED_DIR
     if path.exists():
         if not path.is_dir():
             raise CheckpointError(f"{path}: not a checkpoint directory (expected a folder with {MODEL_FILE})")
@@ -355,7 +384,7 @@ from humanoid_env.env import HumanoidEnv
 
 bfm = BFM.load("{repo_id}")
 z = bfm.prompt.reward("move-ego-0-2")    # or bfm.prompt.goal("t_pose"), bfm.prompt.track("clip.npz")
-env = HumanoidEnv()
+env = HumanoidEnv(action_mapping=bfm.action_mapping)
 obs, info = env.reset(seed=0)
 for _ in range(300):
     obs, reward, terminated, truncated, info = env.step(bfm.act(obs, z))

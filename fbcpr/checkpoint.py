@@ -33,6 +33,7 @@ from safetensors.torch import load_file, save_file
 import fbcpr
 from fbcpr.config import Config, ConfigError, ModelConfig, config_from_dict, config_to_dict, model_config_from_dict
 from fbcpr.model import FBCPRModel
+from humanoid_env.actions import LEGACY_ACTION_MAPPING
 
 FORMAT = "fbcpr-checkpoint"
 FORMAT_VERSION = 1
@@ -76,7 +77,7 @@ class Checkpoint:
         missing = [k for k in REWARD_KEYS if k not in tensors]
         if missing:
             raise CheckpointError(f"{self.path / REWARD_FILE}: missing tensors {missing}")
-        return {k: tensors[k].numpy() for k in REWARD_KEYS}
+        return {k: tensors[k].float().numpy() for k in REWARD_KEYS}  # compact exports store float16
 
     def replay_buffer(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]] | None:
         return _read_tensors(self.path, REPLAY_FILE, self.manifest) if self.has(REPLAY_FILE) else None
@@ -126,8 +127,11 @@ def save_checkpoint(
     trainer_state: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
     reward_buffer: dict[str, np.ndarray | torch.Tensor] | None = None,
     replay_buffer: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
+    reward_dtype: torch.dtype = torch.float32,
 ) -> Path:
-    """Write a checkpoint directory at `path` atomically (replacing any checkpoint already there)."""
+    """Write a checkpoint directory at `path` atomically (replacing any checkpoint already there).
+
+    `reward_dtype=torch.float16` halves the reward-inference buffer, for checkpoints that ship."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
@@ -147,7 +151,7 @@ def save_checkpoint(
             missing = [k for k in REWARD_KEYS if k not in reward_buffer]
             if missing:
                 raise CheckpointError(f"reward_buffer: missing arrays {missing}")
-            put(REWARD_FILE, {k: torch.as_tensor(np.asarray(reward_buffer[k])).float() for k in REWARD_KEYS})
+            put(REWARD_FILE, {k: torch.as_tensor(np.asarray(reward_buffer[k])).to(reward_dtype) for k in REWARD_KEYS})
         if replay_buffer is not None:
             put(REPLAY_FILE, *replay_buffer)
         cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}
@@ -218,6 +222,8 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
     _verify(path / CONFIG_FILE, manifest)
     try:
         data = yaml.safe_load((path / CONFIG_FILE).read_text())
+        if isinstance(data, dict) and isinstance(data.get("env"), dict):
+            data["env"].setdefault("action_mapping", LEGACY_ACTION_MAPPING)  # written before the option existed
         config: Config | ModelConfig = (config_from_dict(data) if set(data) != {"model"}
                                         else model_config_from_dict(data["model"]))
     except (yaml.YAMLError, ConfigError, TypeError, AttributeError) as e:

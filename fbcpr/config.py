@@ -16,6 +16,8 @@ from typing import Any, Callable
 
 import yaml
 
+from humanoid_env.actions import ACTION_MAPPINGS, DEFAULT_ACTION_MAPPING
+
 
 class ConfigError(ValueError):
     """A configuration value that is unknown, of the wrong type or out of range; the message names the key."""
@@ -100,6 +102,7 @@ class EnvConfig:
     motions: str = _f("synthetic")
     fall_prob: float = _f(0.2, PROB)
     max_episode_steps: int = _f(300, POSITIVE)
+    action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
 
 
 @dataclass

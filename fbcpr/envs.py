@@ -79,9 +79,10 @@ def _humanoid(cfg: EnvConfig, num_envs: int) -> EnvBundle:
     from fbcpr.evaluation.metrics import emd, tracking_success
 
     return EnvBundle(
-        env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib), max_episode_steps=cfg.max_episode_steps),
+        env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib), max_episode_steps=cfg.max_episode_steps,
+                              action_mapping=cfg.action_mapping),
         library=lib, obs_dim=OBS_DIM, action_dim=NU, nq=NQ, nv=NV,
-        make_eval_env=lambda n, steps: VectorHumanoidEnv(n, max_episode_steps=steps),
+        make_eval_env=lambda n, steps: VectorHumanoidEnv(n, max_episode_steps=steps, action_mapping=cfg.action_mapping),
         clip_obs=lambda i: lib.clips[i].obs,
         clip_start=lambda i: (lib.clips[i].qpos[0], lib.clips[i].qvel[0]),
         emd=emd, success=tracking_success,

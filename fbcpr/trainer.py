@@ -49,7 +49,8 @@ class Trainer:
     """Owns env, agent, buffer and logs of one run directory (`out_dir`)."""
 
     def __init__(self, cfg: Config, out_dir: str | Path, resume: bool = False,
-                 evaluate: Callable[[FBCPRAgent], dict[str, float]] | None = None, progress: bool = True) -> None:
+                 evaluate: Callable[[FBCPRAgent], dict[str, float]] | None = None, progress: bool = True,
+                 init_from: str | Path | None = None) -> None:
         self.out = Path(out_dir)
         self.out.mkdir(parents=True, exist_ok=True)
         self.progress_enabled = progress
@@ -72,6 +73,9 @@ class Trainer:
         np.random.seed(tc.seed)
         self.rng = np.random.default_rng(tc.seed)
         self.agent = FBCPRAgent(cfg.model, cfg.agent, self.device, tc.seed)
+        self.warm_started = init_from is not None and not resume
+        if self.warm_started:
+            self._warm_start(init_from)
         specs = transition_specs(b.obs_dim, b.action_dim, cfg.model.z_dim, b.nq, b.nv)
         big = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) > tc.buffer_memmap_mb * 2**20
         self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if big else None)
@@ -146,7 +150,7 @@ class Trainer:
         if len(stale):
             self.z[torch.as_tensor(stale, device=self.device)] = self._sample_rollout_z(len(stale))
             self.z_age[stale] = 0
-        if self.env_steps < tc.warmup_steps:
+        if self.env_steps < tc.warmup_steps and not self.warm_started:
             action = self.rng.uniform(-1.0, 1.0, size=(n, self.bundle.action_dim)).astype(np.float32)
         else:
             action = agent.model.act(torch.as_tensor(self.obs, device=self.device), self.z, mean=False,
@@ -266,6 +270,22 @@ class Trainer:
             return np.asarray(env._good_qpos), np.asarray(env._good_qvel)
         return np.asarray(env.qpos), np.asarray(env.qvel)
 
+    def _warm_start(self, src: str | Path) -> None:
+        """Start from the weights of any checkpoint, inference-only ones included (the shipped model): networks,
+        targets (= the networks) and normaliser; fresh optimisers and an empty replay buffer, which the warm-up
+        fills with the loaded policy's own rollouts instead of random actions."""
+        from fbcpr.bfm import resolve_checkpoint
+        from fbcpr.agent import TARGETS
+
+        ckpt = load_checkpoint(resolve_checkpoint(src), self.device)
+        theirs = ckpt.config.env.action_mapping if isinstance(ckpt.config, Config) else None
+        if theirs is not None and theirs != self.cfg.env.action_mapping:
+            raise ConfigError(f"env.action_mapping: {self.cfg.env.action_mapping!r} differs from {theirs!r} of the "
+                              f"--init-from checkpoint {ckpt.path}")
+        load_state_strict(self.agent.model, ckpt.model.state_dict(), f"{ckpt.path / 'model.safetensors'} (--init-from)")
+        for k in TARGETS:
+            self.agent.targets[k].load_state_dict(getattr(self.agent.model, k).state_dict())
+
     def _resume(self) -> None:
         root = self.out / "checkpoints"
         latest = root / "latest"
@@ -346,9 +366,10 @@ def _np_global_state() -> list[Any]:
     return [name, keys.tolist(), int(pos), int(has_gauss), float(cached)]
 
 
-def train(cfg: Config, out_dir: str | Path, resume: bool = False, progress: bool = True) -> dict[str, Any]:
-    """Build a Trainer and run it to the end (or until interrupted)."""
-    trainer = Trainer(cfg, out_dir, resume=resume, progress=progress)
+def train(cfg: Config, out_dir: str | Path, resume: bool = False, progress: bool = True,
+          init_from: str | Path | None = None) -> dict[str, Any]:
+    """Build a Trainer and run it to the end (or until interrupted); `init_from` warm-starts a new run."""
+    trainer = Trainer(cfg, out_dir, resume=resume, progress=progress, init_from=init_from)
     summary = trainer.run()
     (Path(out_dir) / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary

@@ -1,7 +1,7 @@
 """Gymnasium environment for one SMPL humanoid: PD control at 30 Hz on a 450 Hz MuJoCo simulation.
 
 An action in [-1, 1]^69 is a PD target placed on each joint's range (the actuators' ctrlrange equals the
-joint range). One step runs `mujoco.mj_step` for 15 substeps; the observation comes from the one observation
+joint range) by the env's action mapping (`humanoid_env.actions`: `rest`, the default, or `mid`). One step runs `mujoco.mj_step` for 15 substeps; the observation comes from the one observation
 function (`humanoid_env.observation`). A simulation that diverges (MuJoCo warnings, NaN or huge velocities)
 ends the episode with the last good observation and `info["diverged"] = True`; nothing raises.
 """
@@ -13,6 +13,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap
 from humanoid_env.model import N_SUBSTEPS, NQ, NU, NV, load_model
 from humanoid_env.observation import OBS_DIM, assemble, read_kinematics
 
@@ -52,12 +53,6 @@ def resolve_reward(reward: RewardFn | str | None) -> RewardFn | None:
     raise TypeError(f"reward must be a callable, a task name or None, got {type(reward).__name__}")
 
 
-def pd_targets(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
-    """(mid, half) of each actuator's ctrlrange, so that ctrl = mid + action * half."""
-    lo, hi = model.actuator_ctrlrange[:, 0].copy(), model.actuator_ctrlrange[:, 1].copy()
-    return (lo + hi) / 2, (hi - lo) / 2
-
-
 def check_state(qpos: Any, qvel: Any, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Validate a user-given state: shapes (n,76)/(n,75) (or (76,)/(75,) when n is None) and finite values."""
     qp, qv = np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
@@ -92,6 +87,7 @@ class HumanoidEnv(gym.Env):
         render_mode: str | None = None,
         width: int = 320,
         height: int = 240,
+        action_mapping: str = DEFAULT_ACTION_MAPPING,
     ) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -111,7 +107,7 @@ class HumanoidEnv(gym.Env):
         self._renderer = None
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (NU,), np.float32)
-        self._mid, self._half = pd_targets(self.model)
+        self.action_map = ActionMap(self.model, action_mapping)
         self._act = np.empty(NU)
         self._obs = np.zeros(OBS_DIM, np.float32)
         self._good_qpos, self._good_qvel = self.data.qpos.copy(), self.data.qvel.copy()
@@ -157,9 +153,7 @@ class HumanoidEnv(gym.Env):
         np.clip(a, -1.0, 1.0, out=self._act)
         if not np.isfinite(self._act.sum()):
             raise ValueError("action contains NaN or inf")
-        ctrl = self.data.ctrl
-        np.multiply(self._act, self._half, out=ctrl)
-        ctrl += self._mid
+        self.action_map.to_ctrl(self._act, out=self.data.ctrl)
         mujoco.mj_step(self.model, self.data, nstep=N_SUBSTEPS)
         self._steps += 1
         obs = self._observe()

@@ -28,9 +28,9 @@ from humanoid_env.env import (
     TerminationFn,
     _state_options,
     check_state,
-    pd_targets,
     resolve_reward,
 )
+from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap
 from humanoid_env.model import N_SUBSTEPS, NU, load_model
 from humanoid_env.observation import N_BODIES, OBS_DIM, assemble
 
@@ -51,6 +51,7 @@ class VectorHumanoidEnv(VectorEnv):
         termination: TerminationFn | None = None,
         max_episode_steps: int = DEFAULT_EPISODE_STEPS,
         max_qvel: float = MAX_QVEL,
+        action_mapping: str = DEFAULT_ACTION_MAPPING,
     ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
@@ -77,7 +78,7 @@ class VectorHumanoidEnv(VectorEnv):
         b = self.batch
         self._qpos, self._qvel, self._ctrl, self._time = b.bind("qpos"), b.bind("qvel"), b.bind("ctrl"), b.bind("time")
         self._xpos, self._xmat, self._cvel, self._com = b.bind("xpos"), b.bind("xmat"), b.bind("cvel"), b.bind("subtree_com")
-        self._mid, self._half = pd_targets(self.model)
+        self.action_map = ActionMap(self.model, action_mapping)
         self._act = np.empty((self.num_envs, NU))
         self._obs = np.zeros((self.num_envs, OBS_DIM), np.float32)
         self._good_qpos, self._good_qvel = self._qpos.copy(), self._qvel.copy()
@@ -133,8 +134,7 @@ class VectorHumanoidEnv(VectorEnv):
         np.clip(a, -1.0, 1.0, out=self._act)
         if not np.isfinite(self._act.sum()):
             raise ValueError(f"actions contain NaN or inf (envs {np.flatnonzero(~np.isfinite(self._act).all(1)).tolist()})")
-        np.multiply(self._act, self._half, out=self._ctrl)
-        self._ctrl += self._mid
+        self.action_map.to_ctrl(self._act, out=self._ctrl)
         failed = self._advance()
 
         obs = self._observe()

@@ -223,3 +223,34 @@ def test_bfm_is_an_evaluation_agent(bfm):
     assert bfm.track_z(np.zeros((5, 358), np.float32)).shape == (4, 8)
     manifest = json.loads((Path(bfm.source) / "manifest.json").read_text())
     assert manifest["model"]["z_dim"] == bfm.z_dim
+
+
+def test_compact_save_keeps_a_float16_subsample_that_prompts(bfm, tmp_path):
+    full = bfm.save(tmp_path / "full")
+    small = bfm.save(tmp_path / "small", reward_samples=16, half=True)
+    size = lambda p: (p / "reward_buffer.safetensors").stat().st_size  # noqa: E731
+    assert size(small) < 0.3 * size(full)
+    again = BFM.load(small)
+    buf = again.reward_buffer
+    assert buf["next_obs"].shape == (16, 358) and buf["next_obs"].dtype == np.float32
+    orig = bfm.reward_buffer["qpos"]  # every kept row is one of the original rows, to float16 precision
+    err = np.abs(buf["qpos"][:, None] - orig[None]).max(-1).min(1)
+    assert err.max() < 2e-3 * np.abs(orig).max()
+    z = again.prompt.reward(lambda obs, action, qpos, qvel: obs[:, 0])
+    assert z.shape == (bfm.z_dim,) and np.isfinite(z).all()
+    with pytest.raises(ValueError, match="reward_samples"):
+        bfm.save(tmp_path / "bad", reward_samples=0)
+
+
+def test_legacy_checkpoint_without_action_mapping_means_mid(ckpt, tmp_path):
+    old = tmp_path / "old"
+    shutil.copytree(ckpt, old)
+    cfg = yaml.safe_load((old / "config.yaml").read_text())
+    assert cfg["env"].pop("action_mapping") == "rest"
+    (old / "config.yaml").write_text(yaml.safe_dump(cfg))
+    manifest = json.loads((old / "manifest.json").read_text())
+    import hashlib
+    data = (old / "config.yaml").read_bytes()
+    manifest["files"]["config.yaml"] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    assert BFM.load(old).action_mapping == "mid" and BFM.load(ckpt).action_mapping == "rest"

@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from humanoid_env.env import HumanoidEnv, pd_targets
+from humanoid_env.env import HumanoidEnv
+from humanoid_env.actions import ActionMap
 from humanoid_env.inits import DefaultInit, FallInit, MixtureInit, MocapInit, _Geometry, make_init
 from humanoid_env.model import JOINT_NAMES, NQ, NV, joint_ranges, load_model
 from humanoid_env.observation import observe
 
 
 def _pose_action(model, angles: np.ndarray) -> np.ndarray:
-    mid, half = pd_targets(model)
-    return ((angles - mid) / half).astype(np.float32)
+    return ActionMap(model).from_angles(angles)
 
 
 def _floor_contacts(model, qpos) -> int:
@@ -274,3 +274,31 @@ def test_rollout_command_prints_stats():
     assert "steps/s" in result.output and "diverged" in result.output and "20" in result.output
     bad = CliRunner().invoke(app, ["rollout", "--policy", "fast"])
     assert bad.exit_code != 0
+
+
+@pytest.mark.parametrize("mapping", ["rest", "mid"])
+def test_action_mapping_round_trip_and_range(mapping):
+    model = load_model()
+    amap = ActionMap(model, mapping)
+    lo, hi = model.actuator_ctrlrange.T
+    assert np.allclose(amap.to_ctrl(np.full(69, -1.0)), lo) and np.allclose(amap.to_ctrl(np.ones(69)), hi)
+    angles = np.random.default_rng(0).uniform(lo, hi)
+    assert np.allclose(amap.to_ctrl(amap.from_angles(angles).astype(np.float64)), angles, atol=1e-5)
+    rest = amap.to_ctrl(np.zeros(69))
+    assert np.allclose(rest, 0.0) if mapping == "rest" else np.allclose(rest, (lo + hi) / 2)
+
+
+def test_zero_action_stands_under_rest_mapping_and_falls_under_mid():
+    heights = {}
+    for mapping in ("rest", "mid"):
+        env = HumanoidEnv(max_episode_steps=100, action_mapping=mapping)
+        env.reset(seed=0)
+        for _ in range(90):  # 3 s
+            obs, *_ = env.step(np.zeros(69, np.float32))
+        heights[mapping] = obs[0]
+    assert heights["rest"] > 0.8 and heights["mid"] < 0.6, heights
+
+
+def test_unknown_action_mapping_is_rejected():
+    with pytest.raises(ValueError, match="action_mapping"):
+        HumanoidEnv(action_mapping="crouch")

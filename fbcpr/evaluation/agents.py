@@ -9,6 +9,7 @@ from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
+from humanoid_env.actions import DEFAULT_ACTION_MAPPING
 from humanoid_env.model import NU
 from humanoid_env.observation import OBS_DIM
 
@@ -69,13 +70,18 @@ class RandomAgent(_Floor):
 
 
 class ZeroAgent(_Floor):
-    """Action 0: every PD target at the middle of its joint range."""
+    """Action 0: under the default mapping, every PD target at the standing rest pose."""
 
     name = "zero"
 
     def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> np.ndarray:
         n = _check_obs(obs, "act").reshape(-1, OBS_DIM).shape[0]
         return np.zeros((n, NU), np.float32)
+
+
+def action_mapping(agent: object) -> str:
+    """The env action mapping an agent's actions are meant for (`humanoid_env.actions`); floors use the default."""
+    return str(getattr(agent, "action_mapping", DEFAULT_ACTION_MAPPING))
 
 
 def make_agent(spec: str, seed: int = 0) -> Agent:

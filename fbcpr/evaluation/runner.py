@@ -14,7 +14,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from fbcpr.evaluation.agents import Agent
+from fbcpr.evaluation.agents import Agent, action_mapping
 from fbcpr.evaluation.metrics import d_smpl, emd, goal_proximity, goal_success, tracking_success
 from humanoid_env.observation import OBS_DIM
 
@@ -33,10 +33,11 @@ def _batch_z(z: np.ndarray, n: int) -> np.ndarray:
 class _Rollouts:
     """One batched env reused for every task of a suite."""
 
-    def __init__(self, num_envs: int, steps: int, num_threads: int | None) -> None:
+    def __init__(self, agent: Agent, num_envs: int, steps: int, num_threads: int | None) -> None:
         from humanoid_env.vector import VectorHumanoidEnv
 
-        self.env = VectorHumanoidEnv(num_envs, max_episode_steps=steps, num_threads=num_threads)
+        self.env = VectorHumanoidEnv(num_envs, max_episode_steps=steps, num_threads=num_threads,
+                                     action_mapping=action_mapping(agent))
         self.num_envs, self.steps = num_envs, steps
 
     def run(self, agent: Agent, z_at: Callable[[int], np.ndarray], qpos: np.ndarray, qvel: np.ndarray,
@@ -68,7 +69,7 @@ def reward_suite(agent: Agent, tasks: Sequence[str], episodes: int, init: tuple[
 
     fns = [get_reward(t) for t in tasks]  # fail on a bad name before any simulation
     bar = progress.add_task("reward", total=len(tasks) * steps)
-    roll = _Rollouts(episodes, steps, num_threads)
+    roll = _Rollouts(agent, episodes, steps, num_threads)
     out: dict[str, Any] = {}
     try:
         for task, fn in zip(tasks, fns):
@@ -93,7 +94,7 @@ def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np
 
     targets = [goal_obs(g) for g in goals]
     bar = progress.add_task("goal", total=len(goals) * steps)
-    roll = _Rollouts(episodes, steps, num_threads)
+    roll = _Rollouts(agent, episodes, steps, num_threads)
     out: dict[str, Any] = {}
     try:
         for name, goal in zip(goals, targets):
@@ -136,7 +137,7 @@ def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch
             traj[:, t + 1] = nxt
             dead[:] |= ~alive & (t < lengths)
 
-        roll = _Rollouts(len(group), steps, num_threads)
+        roll = _Rollouts(agent, len(group), steps, num_threads)
         try:
             qpos = np.stack([c.qpos[0] for c in group])
             qvel = np.stack([c.qvel[0] for c in group])

@@ -1,0 +1,31 @@
+"""`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from fbcpr.cli.common import cli_errors, console
+
+
+@cli_errors
+def export_command(
+    checkpoint: str = typer.Argument(..., help="Checkpoint dir, run dir, 'pretrained' or a Hugging Face repo id."),
+    out: Path = typer.Argument(..., help="Folder to write the inference checkpoint into (replaced atomically)."),
+    reward_samples: int = typer.Option(20_000, "--reward-samples", min=1,
+                                       help="States kept for reward prompts (a seeded subsample of the buffer)."),
+    half: bool = typer.Option(True, "--half/--full", help="Store the reward states as float16 (half the size)."),
+) -> None:
+    """Write what inference needs and nothing else: no trainer state, no replay buffer."""
+    from fbcpr.bfm import BFM
+
+    bfm = BFM.load(checkpoint)
+    path = bfm.save(out, reward_samples=reward_samples, half=half)
+    sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
+    for name, size in sizes.items():
+        console.print(f"  {name:28s} {size / 2**20:8.2f} MiB")
+    console.print(f"wrote [bold]{path}[/] ({sum(sizes.values()) / 2**20:.2f} MiB in all)")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("export")(export_command)
