@@ -1,9 +1,10 @@
-"""`fbcpr demo`: the whole pipeline on a fresh machine in a few minutes.
+"""`fbcpr demo`: the whole pipeline on a fresh machine, in well under a minute.
 
-Train the quickstart config on the built-in synthetic motions for a time budget, then prompt the model with a
-reward, a goal pose and a clip, score each next to the zero-action and random-action floors with the benchmark
-runner, write videos (when a renderer exists) and a summary table. A few CPU minutes are a tiny fraction of
-the paper's 30M-step training, and the summary says so.
+By default it prompts the model that ships with the package (`fbcpr/pretrained/`) with a reward, a goal pose
+and a clip, scores each next to the zero-action and random-action floors with the benchmark runner, and writes
+videos (when a renderer exists) and a summary table. `--train` first trains the quickstart config on the
+built-in synthetic motions for a time budget and prompts that model instead; a few CPU minutes are a tiny
+fraction of the paper's 30M-step training, and the summary says so.
 """
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ from rich.table import Table
 from fbcpr.cli.common import cli_errors, console
 
 DEFAULT_CONFIG = "quickstart.yaml"
+#: One line on what the shipped model is, for the demo's verdict (its model card has the details).
+PRETRAINED_NOTE = "FB-CPR, small networks, trained on 2 CPU cores on the DeepMimic clips"
 
 
 def find_config(path: Optional[Path]) -> Path:
@@ -63,6 +66,8 @@ def score_rows(results: dict[str, Any], reward: str, goal: str, clip: str) -> li
 
 @cli_errors
 def demo_command(
+    train: bool = typer.Option(False, "--train", help="Train a model from scratch first instead of prompting the "
+                               "shipped pretrained one (--config, --minutes, --steps, --device apply)."),
     config: Optional[Path] = typer.Option(None, "--config", help="Run config (default: the shipped configs/quickstart.yaml)."),
     minutes: float = typer.Option(5.0, "--minutes", min=0.05, help="Training time budget."),
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Train exactly this many env steps instead."),
@@ -75,42 +80,28 @@ def demo_command(
     video: bool = typer.Option(True, "--video/--no-video", help="Write videos (skipped without a renderer)."),
     device: Optional[str] = typer.Option(None, "--device", help="Override train.device (cpu, cuda, auto)."),
 ) -> None:
-    """Train a small model for a few minutes, prompt it with a reward, a goal and a clip, and report honestly."""
-    from fbcpr.bfm import BFM
-    from fbcpr.config import load_config
+    """Prompt the pretrained model (or, with --train, a freshly trained one) with a reward, a goal and a clip."""
+    from fbcpr.bfm import PRETRAINED_DIR, BFM
     from fbcpr.evaluation.agents import RandomAgent, ZeroAgent
     from fbcpr.evaluation.runner import evaluate
-    from fbcpr.trainer import Trainer
     from humanoid_env.tasks import get_reward
     from humanoid_env.tasks.goals import goal_obs
     from motions.synthetic import default_library
 
-    cfg_path = find_config(config)
-    cfg = load_config(cfg_path)
-    if cfg.env.name != "humanoid" or cfg.env.motions != "synthetic":
-        raise ValueError(f"{cfg_path}: the demo trains the humanoid on the built-in synthetic motions "
-                         f"(env.name: humanoid, env.motions: synthetic), got {cfg.env.name!r}, {cfg.env.motions!r}")
-    if device is not None:
-        cfg.train.device = device
-    if steps is not None:
-        cfg.train.total_env_steps = steps
-    else:
-        cfg.train.total_env_steps = 10**12  # the time budget governs, however fast the machine
     library = default_library()
-    get_reward(reward), goal_obs(goal)  # fail on bad names before training
+    get_reward(reward), goal_obs(goal)  # fail on bad names before any work
     if clip not in library.names:
         raise ValueError(f"unknown built-in clip {clip!r}; choose from {', '.join(library.names)}")
-    if (out / "checkpoints" / "latest").exists():
-        raise FileExistsError(f"{out} already holds a run; choose another --out or remove it")
-
-    console.rule(f"1/3 training {cfg_path.name} " + (f"for {steps:,} env steps" if steps else f"for {minutes:g} min"))
-    t0 = time.monotonic()
-    trainer = Trainer(cfg, out, progress=True)
-    summary = train_for(trainer, None if steps else minutes * 60.0, steps)
-    train_minutes = (time.monotonic() - t0) / 60.0
-    bfm = BFM.load(summary["checkpoint"], device=str(trainer.device))
-    console.print(f"trained {summary['env_steps']:,} env steps, {summary['updates']:,} updates in "
-                  f"{train_minutes:.1f} min; checkpoint {summary['checkpoint']}")
+    if train:
+        bfm, trained = _train_model(config, minutes, steps, out, device)
+    else:
+        given = [name for name, v in (("--config", config), ("--steps", steps), ("--device", device)) if v is not None]
+        if given:
+            raise ValueError(f"{given[0]} applies to training: add --train, or leave it out to prompt the pretrained model")
+        console.rule("1/3 loading the pretrained model")
+        bfm, trained = BFM.pretrained(), None
+        out.mkdir(parents=True, exist_ok=True)
+        console.print(f"loaded {PRETRAINED_DIR} (its model card: README.md there)")
 
     console.rule("2/3 prompting and scoring against the floor baselines")
     agents = {"FB-CPR": bfm, "zero action": ZeroAgent(), "random action": RandomAgent(seed=0)}
@@ -125,18 +116,51 @@ def demo_command(
     videos = write_demo_videos(bfm, reward, goal, library.clips[library.names.index(clip)], out / "videos", video)
     console.print(summary_table(rows))
     wins = sum(_beats_floors(rows, i) for i in range(len(rows["FB-CPR"])))
-    verdict = (f"This model trained for {train_minutes:.1f} min ({summary['env_steps']:,} env steps); the paper "
-               f"trains for 30M env steps. It beats both floor baselines on {wins} of {len(rows['FB-CPR'])} scores. "
-               "A few-minute model is a smoke test of the pipeline, not a capable controller: expect it to fall "
-               "often and to follow prompts only loosely. Train longer (`fbcpr train configs/small.yaml`, "
-               "a GPU helps) for real behaviour.")
+    score = f"It beats both floor baselines on {wins} of {len(rows['FB-CPR'])} scores."
+    if trained is None:
+        verdict = (f"The pretrained model ({PRETRAINED_NOTE}). {score} Its model card "
+                   "(fbcpr/pretrained/README.md) and docs/results.md say what it can and cannot do yet.")
+    else:
+        verdict = (f"This model trained for {trained['minutes']:.1f} min ({trained['env_steps']:,} env steps); the "
+                   f"paper trains for 30M env steps. {score} A few-minute model is a smoke test of the pipeline, "
+                   "not a capable controller: expect it to fall often and to follow prompts only loosely. Train "
+                   "longer (`fbcpr train configs/cpu.yaml`, a GPU helps) for real behaviour.")
     console.print(verdict)
-    report = {"config": str(cfg_path), "train_minutes": train_minutes, "env_steps": summary["env_steps"],
-              "updates": summary["updates"], "checkpoint": summary["checkpoint"], "videos": [str(v) for v in videos],
+    report = {"model": "pretrained" if trained is None else trained["checkpoint"], "training": trained,
+              "videos": [str(v) for v in videos],
               "scores": {name: [{"prompt": p, "metric": m, "value": v} for p, m, v, _ in r] for name, r in rows.items()},
               "beats_floors": wins, "verdict": verdict}
     (out / "demo_summary.json").write_text(json.dumps(report, indent=1, default=float))
     console.print(f"summary written to [bold]{out / 'demo_summary.json'}[/]")
+
+
+def _train_model(config: Optional[Path], minutes: float, steps: Optional[int], out: Path,
+                 device: Optional[str]) -> tuple[Any, dict[str, Any]]:
+    """Train the (quickstart) config for the budget; the loaded model and what the training did."""
+    from fbcpr.bfm import BFM
+    from fbcpr.config import load_config
+    from fbcpr.trainer import Trainer
+
+    cfg_path = find_config(config)
+    cfg = load_config(cfg_path)
+    if cfg.env.name != "humanoid" or cfg.env.motions != "synthetic":
+        raise ValueError(f"{cfg_path}: the demo trains the humanoid on the built-in synthetic motions "
+                         f"(env.name: humanoid, env.motions: synthetic), got {cfg.env.name!r}, {cfg.env.motions!r}")
+    if device is not None:
+        cfg.train.device = device
+    cfg.train.total_env_steps = steps if steps is not None else 10**12  # else the time budget governs
+    if (out / "checkpoints" / "latest").exists():
+        raise FileExistsError(f"{out} already holds a run; choose another --out or remove it")
+    console.rule(f"1/3 training {cfg_path.name} " + (f"for {steps:,} env steps" if steps else f"for {minutes:g} min"))
+    t0 = time.monotonic()
+    trainer = Trainer(cfg, out, progress=True)
+    summary = train_for(trainer, None if steps else minutes * 60.0, steps)
+    train_minutes = (time.monotonic() - t0) / 60.0
+    console.print(f"trained {summary['env_steps']:,} env steps, {summary['updates']:,} updates in "
+                  f"{train_minutes:.1f} min; checkpoint {summary['checkpoint']}")
+    return BFM.load(summary["checkpoint"], device=str(trainer.device)), {
+        "config": str(cfg_path), "minutes": train_minutes, "env_steps": summary["env_steps"],
+        "updates": summary["updates"], "checkpoint": summary["checkpoint"]}
 
 
 def _beats_floors(rows: dict[str, list[tuple[str, str, float, bool]]], i: int) -> bool:

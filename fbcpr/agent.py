@@ -19,6 +19,7 @@ from fbcpr import losses
 from fbcpr.config import AgentConfig, ModelConfig
 from fbcpr.model import FBCPRModel
 from fbcpr.networks import project_sphere
+from fbcpr.precision import resolve_bf16
 
 #: Modules with a Polyak-averaged target copy.
 TARGETS = ("forward_map", "backward_map", "critic")
@@ -34,6 +35,7 @@ class FBCPRAgent:
                  seed: int = 0) -> None:
         self.cfg = agent_cfg
         self.device = torch.device(device)
+        self.bf16 = resolve_bf16(agent_cfg.bf16, self.device)
         torch.manual_seed(seed)
         self.model = FBCPRModel(model_cfg).to(self.device)
         self.targets = nn.ModuleDict({k: copy.deepcopy(getattr(self.model, k)) for k in TARGETS})
@@ -93,7 +95,7 @@ class FBCPRAgent:
         expert = expert_windows.to(dev, torch.float32)
         expert_flat = expert.reshape(-1, expert.shape[-1])
         self.model.obs_normalizer.update(torch.cat([obs, expert_flat]))
-        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.cfg.bf16):
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
             out = self._compute(obs, action, next_obs, z_buf, terminated, expert)
         total = out.pop("_total")
         for opt in self.optimizers.values():

@@ -86,7 +86,7 @@ class AgentConfig:
     z_online: float = _f(0.2, PROB)
     z_uniform: float = _f(0.2, PROB)
     compile: bool = _f(False)
-    bf16: bool = _f(False)
+    bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
 
     def validate(self, prefix: str) -> None:
         total = self.z_expert + self.z_online + self.z_uniform
@@ -146,9 +146,9 @@ PRESETS: dict[str, dict[str, Any]] = {
                  discriminator_hidden_layers=2),
     "small": dict(z_dim=64, hidden_dim=256, hidden_layers=1, backward_hidden_dim=128, discriminator_hidden_dim=256,
                   discriminator_hidden_layers=3),
-    "paper-S": dict(z_dim=256, hidden_dim=1024, hidden_layers=1, backward_hidden_dim=256, discriminator_hidden_dim=1024,
+    "paper-S": dict(z_dim=256, hidden_dim=1024, hidden_layers=2, backward_hidden_dim=256, discriminator_hidden_dim=1024,
                     discriminator_hidden_layers=3),
-    "paper-M": dict(z_dim=256, hidden_dim=2048, hidden_layers=1, backward_hidden_dim=256, discriminator_hidden_dim=1024,
+    "paper-M": dict(z_dim=256, hidden_dim=2048, hidden_layers=2, backward_hidden_dim=256, discriminator_hidden_dim=1024,
                     discriminator_hidden_layers=3),
 }
 

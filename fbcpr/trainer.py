@@ -26,6 +26,7 @@ from typing import Any, Callable
 
 import numpy as np
 import torch
+from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from fbcpr.agent import FBCPRAgent
@@ -35,6 +36,16 @@ from fbcpr.config import Config, ConfigError
 from fbcpr.envs import EnvBundle, make_env, tracking_scores
 
 LIVE_KEYS = ("fb_loss", "actor_loss", "critic_loss", "disc_loss", "reward")
+#: |action| beyond which a component counts as saturated (at a joint limit's side of the PD range).
+SATURATED = 0.9
+#: Failure signatures reported by public FB-CPR users, checked at every log row: (name, test, message).
+WARNINGS: tuple[tuple[str, Callable[[dict[str, float]], bool], str], ...] = (
+    ("discriminator", lambda m: m.get("disc_expert", 0.0) > 0.95 and m.get("disc_online", 1.0) < 0.05,
+     "the discriminator separates expert from online states almost perfectly: the imitation reward is a constant "
+     "penalty and the actor learns little from it (a signature of runs that end lying on the ground)"),
+    ("bang-bang", lambda m: m.get("action_saturated", 0.0) > 0.5,
+     "over half of the policy's action components sit beyond 0.9: a bang-bang actor, which falls"),
+)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -87,6 +98,8 @@ class Trainer:
         self.next_log = 0
         self.emd: dict[str, float] = {}
         self.last_metrics: dict[str, float] = {}
+        self._action_stats = np.zeros(3)  # sum |a|, saturated components, components (policy actions only)
+        self._warned: set[str] = set()
         self._stop = False
         self.obs, info = b.env.reset(seed=tc.seed)
         self.z = self._sample_rollout_z(tc.num_envs)
@@ -155,6 +168,8 @@ class Trainer:
         else:
             action = agent.model.act(torch.as_tensor(self.obs, device=self.device), self.z, mean=False,
                                      generator=agent.generator).cpu().numpy()
+            mag = np.abs(action)
+            self._action_stats += (mag.sum(), (mag > SATURATED).sum(), mag.size)
         next_obs, _, terminated, truncated, info = env.step(action)
         self.buffer.add({"obs": self.obs, "action": action, "next_obs": info["final_obs"], "z": self.z.cpu().numpy(),
                          "qpos": info["final_qpos"], "qvel": info["final_qvel"], "terminated": terminated})
@@ -184,8 +199,10 @@ class Trainer:
                 self.next_eval += tc.eval_every
         if self.env_steps >= self.next_log or extra:
             fps = (self.env_steps - steps0) / max(time.perf_counter() - t0, 1e-9)
-            self._log({"env_steps": self.env_steps, "updates": self.updates, "episodes": self.episodes,
-                       "env_steps_per_s": fps, **self.last_metrics, **extra})
+            row = {"env_steps": self.env_steps, "updates": self.updates, "episodes": self.episodes,
+                   "env_steps_per_s": fps, **self.last_metrics, **self._take_action_stats(), **extra}
+            self._log(row)
+            self._warn(row)
             while self.next_log <= self.env_steps:
                 self.next_log += tc.log_every
         if self.env_steps >= self.next_ckpt:
@@ -209,6 +226,21 @@ class Trainer:
         if self.custom_eval is not None:
             out.update({f"eval/{k}": float(v) for k, v in self.custom_eval(self.agent).items()})
         return out
+
+    def _take_action_stats(self) -> dict[str, float]:
+        """Mean |action| and the saturated share of the policy's rollout actions since the last log row."""
+        total, saturated, count = self._action_stats
+        self._action_stats[:] = 0
+        return {"action_abs": total / count, "action_saturated": saturated / count} if count else {}
+
+    def _warn(self, row: dict[str, float]) -> None:
+        """Say plainly, once per run and signature, when training heads where failed public runs went."""
+        for name, test, message in WARNINGS:
+            if name not in self._warned and test(row):
+                self._warned.add(name)
+                Console(stderr=True).print(f"[yellow]warning at {self.env_steps:,} env steps: {message}[/]")
+                with open(self.out / "warnings.txt", "a") as f:
+                    f.write(f"{self.env_steps}\t{name}\t{message}\n")
 
     def _log(self, row: dict[str, float]) -> None:
         if self._writer is None:

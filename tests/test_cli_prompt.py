@@ -159,14 +159,16 @@ train: {total_env_steps: 100000, num_envs: 4, warmup_steps: 100, rollout_steps: 
         torch_threads: 1}
 """)
     out = tmp_path / "demo"
-    res = run("demo", "--config", cfg, "--steps", "160", "--out", out, "--episodes", "1", "--eval-steps", "5",
-              "--no-video")
+    res = run("demo", "--train", "--config", cfg, "--steps", "160", "--out", out, "--episodes", "1",
+              "--eval-steps", "5", "--no-video")
     assert res.exit_code == 0, res.output
     summary = json.loads((out / "demo_summary.json").read_text())
-    assert summary["env_steps"] == 160 and summary["updates"] > 0
+    assert summary["training"]["env_steps"] == 160 and summary["training"]["updates"] > 0
     assert set(summary["scores"]) == {"FB-CPR", "zero action", "random action"}
     assert [s["metric"] for s in summary["scores"]["FB-CPR"]] == ["return", "proximity", "success", "EMD", "success"]
     assert 0 <= summary["beats_floors"] <= 5 and "30M env steps" in summary["verdict"]
     assert "zero-shot prompts" in res.output
-    again = run("demo", "--config", cfg, "--steps", "10", "--out", out)  # never overwrites a finished run
+    again = run("demo", "--train", "--config", cfg, "--steps", "10", "--out", out)  # never overwrites a run
     assert again.exit_code == 1 and "already holds a run" in again.output
+    untrained = run("demo", "--steps", "10", "--out", tmp_path / "x")  # training options need --train
+    assert untrained.exit_code == 1 and "--steps applies to training" in untrained.output

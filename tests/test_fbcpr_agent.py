@@ -112,3 +112,22 @@ def test_bf16_switch_trains_in_float32_master_weights():
     after = agent.model.forward_map.state_dict()
     assert all(v.dtype == torch.float32 for v in after.values())
     assert any(not torch.equal(before[k], after[k]) for k in after)
+
+
+def test_bf16_auto_follows_the_measured_speed(monkeypatch):
+    from fbcpr import precision
+
+    cpu = torch.device("cpu")
+    assert precision.matmul_seconds(torch.float32, cpu, size=64, repeats=1) > 0
+    assert precision.resolve_bf16(True, cpu) is True and precision.resolve_bf16(False, cpu) is False
+    for bf16_time, expected in ((0.2, True), (5.0, False)):
+        monkeypatch.setattr(precision, "matmul_seconds", lambda dtype, device: bf16_time if dtype == torch.bfloat16 else 1.0)
+        assert precision.resolve_bf16("auto", cpu) is expected
+
+
+def test_bf16_setting_is_validated():
+    from fbcpr.config import ConfigError, config_from_dict
+
+    assert config_from_dict({"agent": {"bf16": "auto"}}).agent.bf16 == "auto"
+    with pytest.raises(ConfigError, match="agent.bf16"):
+        config_from_dict({"agent": {"bf16": "fast"}})

@@ -52,9 +52,13 @@ def test_preset_then_overrides_and_roundtrip(tmp_path):
     assert load_config(p) == cfg
 
 
-@pytest.mark.parametrize("name", ["quickstart", "small", "paper-S", "paper-M", "toy"])
+@pytest.mark.parametrize("name", sorted(p.stem for p in CONFIGS.glob("*.yaml")))
 def test_shipped_configs_load(name):
     load_config(CONFIGS / f"{name}.yaml")
+
+
+def test_paper_presets_have_two_hidden_trunk_layers():
+    assert load_config(CONFIGS / "paper-S.yaml").model.hidden_layers == 2
 
 
 def test_bad_yaml_file(tmp_path):

@@ -136,3 +136,17 @@ def test_cli_train_and_bad_config(tmp_path):
     bad.write_text("agent:\n  relabel_prob: 2\n")
     res = runner.invoke(app, ["train", str(bad), "--out", str(tmp_path / "run2")])
     assert res.exit_code == 1 and "agent.relabel_prob" in res.output
+
+
+def test_failure_signatures_are_logged_once(tmp_path):
+    tr = Trainer(tiny_cfg(), tmp_path / "run", progress=False)
+    tr._action_stats[:] = (950.0, 900.0, 1000.0)
+    row = {"disc_expert": 0.99, "disc_online": 0.01, **tr._take_action_stats()}
+    assert row["action_abs"] == pytest.approx(0.95) and row["action_saturated"] == pytest.approx(0.9)
+    tr._warn(row)
+    tr._warn(row)
+    lines = (tmp_path / "run" / "warnings.txt").read_text().splitlines()
+    assert [line.split("\t")[1] for line in lines] == ["discriminator", "bang-bang"]
+    tr._warn({"disc_expert": 0.6, "disc_online": 0.4, "action_saturated": 0.1})
+    assert len((tmp_path / "run" / "warnings.txt").read_text().splitlines()) == 2
+    assert tr._take_action_stats() == {}
