@@ -159,3 +159,11 @@ def test_cli_eval_on_a_tiny_checkpoint(tmp_path):
     saved = json.loads((out / "results.json").read_text())
     assert set(saved) >= {"reward", "goal", "tracking", "summary"}
     assert saved["tracking"]["stand"]["frames"] == 120
+
+
+def test_upright_measures_separate_holding_still_from_random_actions():
+    from fbcpr.evaluation.upright import upright
+
+    zero, rand = upright(ZeroAgent(), episodes=2, steps=45), upright(RandomAgent(0), episodes=2, steps=45)
+    assert zero.median_seconds == pytest.approx(1.5)           # the rest pose holds for the whole 1.5 s
+    assert rand.median_seconds < 1.2 and not rand.got_up.any()  # random PD targets fall within about a second

@@ -1,0 +1,75 @@
+"""The shipped model's target table (issue: a model that controls the humanoid), next to the floor baselines.
+
+One run evaluates a checkpoint and the zero-action and random-action floors with the same seeds, initial states
+and episodes, and prints each measure with its target:
+- stand prompt from standing starts: median seconds upright (target: the full episode, 10 s);
+- stand prompt from fall starts: share of episodes upright over the last second (target >= 0.5);
+- `move-ego-0-2` return of 300 (target >= 100);
+- reward tasks on which the model beats both floors (target: 40 of the paper's 45; our registry has more);
+- goal success, mean over the named poses (target >= 0.3);
+- tracking EMD, mean over the training clips (target <= 3).
+
+    python benchmarks/targets.py pretrained --motions data/clips/deepmimic --episodes 4
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from fbcpr.evaluation.agents import make_agent
+from fbcpr.evaluation.report import json_safe
+from fbcpr.evaluation.runner import evaluate
+from fbcpr.evaluation.upright import upright
+
+
+def measure(spec: str, motions: Any, episodes: int, steps: int, seed: int) -> dict[str, Any]:
+    """Every measure of the table for one agent, plus the per-task returns (to count wins over the floors)."""
+    agent = make_agent(spec, seed=seed)
+    up = upright(agent, episodes=max(episodes, 8), steps=steps, seed=seed)
+    res = evaluate(agent, "all", episodes=episodes, motions=motions, steps=steps, seed=seed, show_progress=False,
+                   agent_name=spec)
+    return {"upright_median_s": up.median_seconds, "got_up": up.share_got_up,
+            "move-ego-0-2": res["reward"]["move-ego-0-2"]["return_mean"],
+            "returns": {t: r["return_mean"] for t, r in res["reward"].items()},
+            "goal_success": res["summary"]["goal"]["success"], "tracking_emd": res["summary"]["tracking"]["emd"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("agent", help="checkpoint dir, run dir or 'pretrained'")
+    ap.add_argument("--motions", default="data/clips/deepmimic", help="folder of the training clips (.npz)")
+    ap.add_argument("--episodes", type=int, default=4)
+    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, help="write all figures as JSON here")
+    args = ap.parse_args()
+    from motions.library import MotionLibrary
+
+    motions = MotionLibrary.load(args.motions)
+    rows = {name: measure(name, motions, args.episodes, args.steps, args.seed) for name in ("zero", "random", args.agent)}
+    model, floors = rows[args.agent], [rows["zero"], rows["random"]]
+    wins = [t for t, r in model["returns"].items() if all(r > f["returns"][t] for f in floors)]
+    for r in rows.values():
+        r["beats_floors"] = len(wins) if r is model else math.nan
+    table = [("stand prompt, standing start: median upright s", "upright_median_s", ">=", 10.0),
+             ("stand prompt, fall start: share upright, last second", "got_up", ">=", 0.5),
+             ("move-ego-0-2 return (of 300)", "move-ego-0-2", ">=", 100.0),
+             (f"reward tasks beating both floors (of {len(model['returns'])})", "beats_floors", ">=", 40),
+             ("goal success, mean over named poses", "goal_success", ">=", 0.3),
+             ("tracking EMD, training clips", "tracking_emd", "<=", 3.0)]
+    print(f"{'measure':54s} {'zero':>8s} {'random':>8s} {'model':>8s} {'target':>8s} met")
+    for label, key, op, target in table:
+        value = model[key]
+        met = value >= target if op == ">=" else value <= target
+        print(f"{label:54s} {rows['zero'][key]:8.2f} {rows['random'][key]:8.2f} {value:8.2f} {op}{target:6g}  "
+              f"{'yes' if met else 'no'}")
+    print(f"tasks beating both floors: {', '.join(sorted(wins)) or 'none'}")
+    if args.out:
+        args.out.write_text(json.dumps(json_safe(rows), indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,61 @@
+"""How long the humanoid stays up under the stand prompt: the plainest learning signal for a humanoid controller.
+
+Two measures, from standing starts and from fall starts (one episode per env, no auto-reset within):
+- seconds until the pelvis first drops below `FALLEN` (0.6 m) from a standing start;
+- whether the pelvis stays above `STANDING` (0.8 m) over the whole last second from a fall start (got up).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fbcpr.evaluation.agents import action_mapping
+from humanoid_env.model import CONTROL_HZ
+
+FALLEN, STANDING = 0.6, 0.8
+STAND_PROMPT = "move-ego-0-0"
+
+
+@dataclass
+class Upright:
+    """Per-episode results: seconds upright from standing starts, got up (bool) from fall starts."""
+
+    seconds: np.ndarray
+    got_up: np.ndarray
+
+    @property
+    def median_seconds(self) -> float:
+        return float(np.median(self.seconds))
+
+    @property
+    def share_got_up(self) -> float:
+        return float(np.mean(self.got_up))
+
+
+def pelvis_heights(agent: Any, init: Any, episodes: int, steps: int, seed: int, prompt: str = STAND_PROMPT) -> np.ndarray:
+    """Pelvis heights (steps, episodes) of the agent prompted with `prompt` from `init` starts."""
+    from humanoid_env.vector import VectorHumanoidEnv
+
+    env = VectorHumanoidEnv(episodes, init=init, max_episode_steps=steps + 1, action_mapping=action_mapping(agent))
+    try:
+        obs, _ = env.reset(seed=seed)
+        z = np.broadcast_to(agent.reward_z(prompt), (episodes, agent.z_dim))
+        heights = np.empty((steps, episodes))
+        for t in range(steps):
+            obs, *_ = env.step(agent.act(obs, z))
+            heights[t] = obs[:, 0]
+    finally:
+        env.close()
+    return heights
+
+
+def upright(agent: Any, episodes: int = 16, steps: int = 300, seed: int = 0) -> Upright:
+    """Both measures for one agent (a BFM or a floor baseline), `episodes` each, seeded."""
+    from humanoid_env.inits import DefaultInit, FallInit
+
+    h = pelvis_heights(agent, DefaultInit(), episodes, steps, seed)
+    fell = np.where((h < FALLEN).any(0), (h < FALLEN).argmax(0), steps) / CONTROL_HZ
+    up = pelvis_heights(agent, FallInit(), episodes, steps, seed + 1)
+    return Upright(seconds=fell, got_up=(up[-CONTROL_HZ:] > STANDING).all(0))
