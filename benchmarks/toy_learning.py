@@ -1,6 +1,6 @@
 """Learning evidence on the point mass: FB-CPR vs its untrained self vs a random policy, zero-shot.
 
-    python benchmarks/toy_learning.py [--steps 40000] [--out runs/toy-bench]
+    python benchmarks/toy_learning.py [--steps 60000] [--seeds 0 1 2 3] [--out runs/toy-bench]
 
 Trains with configs/toy.yaml, evaluates goal reaching, reward maximisation and demo imitation
 (fbcpr.toy.evaluate) every eval_every env steps, writes results.json and docs/img/toy_learning.png.
@@ -12,6 +12,7 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from fbcpr.config import load_config
@@ -21,39 +22,45 @@ from fbcpr.trainer import Trainer
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--steps", type=int, default=None)
-    ap.add_argument("--out", default=str(ROOT / "runs" / "toy-bench"))
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--plot", default=str(ROOT / "docs" / "img" / "toy_learning.png"))
-    args = ap.parse_args()
+def run_seed(seed: int, steps: int | None, out: Path) -> dict:
+    """Train configs/toy.yaml with one seed, evaluating every eval_every env steps; the history of one run."""
     cfg = load_config(ROOT / "configs" / "toy.yaml")
-    cfg.train.seed = args.seed
-    if args.steps:
-        cfg.train.total_env_steps = args.steps
+    cfg.train.seed = seed
+    if steps:
+        cfg.train.total_env_steps = steps
     torch.set_num_threads(cfg.train.torch_threads or 1)
-    trainer = Trainer(cfg, args.out, progress=False)
-    history = {"random": evaluate(None, seed=123), "steps": [0], "trained": [evaluate(trainer.agent.model, seed=123)]}
-    print("random   ", json.dumps({k: round(v, 3) for k, v in history["random"].items() if "/" not in k or "return" in k}))
-    print("untrained", json.dumps({k: round(v, 3) for k, v in history["trained"][0].items() if "/" not in k or "return" in k}))
+    trainer = Trainer(cfg, out, progress=False)
+    history = {"seed": seed, "steps": [0], "trained": [evaluate(trainer.agent.model, seed=123)]}
     t0 = time.perf_counter()
-    every = cfg.train.eval_every
     while trainer.env_steps < cfg.train.total_env_steps:
-        if trainer.run(max_env_steps=every)["interrupted"]:
+        if trainer.run(max_env_steps=cfg.train.eval_every)["interrupted"]:
             break
         res = evaluate(trainer.agent.model, seed=123)
         history["steps"].append(trainer.env_steps)
         history["trained"].append(res)
-        print(f"{trainer.env_steps:6d} steps {time.perf_counter() - t0:6.0f}s",
+        print(f"seed {seed} {trainer.env_steps:6d} steps {time.perf_counter() - t0:6.0f}s",
               json.dumps({k: round(v, 3) for k, v in res.items() if "/" not in k or "return" in k}), flush=True)
     history["train_seconds"] = time.perf_counter() - t0
     history["updates"] = trainer.updates
-    Path(args.out, "results.json").write_text(json.dumps(history, indent=1))
-    plot(history, Path(args.plot))
+    return history
 
 
-def plot(h: dict, path: Path) -> None:
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument("--out", default=str(ROOT / "runs" / "toy-bench"))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--plot", default=str(ROOT / "docs" / "img" / "toy_learning.png"))
+    args = ap.parse_args()
+    results = {"random": evaluate(None, seed=123)}
+    print("random", json.dumps({k: round(v, 3) for k, v in results["random"].items() if "/" not in k or "return" in k}))
+    results["runs"] = [run_seed(seed, args.steps, Path(args.out) / f"seed{seed}") for seed in args.seeds]
+    Path(args.out, "results.json").write_text(json.dumps(results, indent=1))
+    plot(results, Path(args.plot))
+
+
+def plot(results: dict, path: Path) -> None:
+    """One panel per metric: each seed's curve (thin), their mean (thick), the random policy (dashed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -62,9 +69,15 @@ def plot(h: dict, path: Path) -> None:
     keys = ["goal_final_dist", "goal_proximity", "return/reach-top-right", "return/left-wall", "return/ring",
             "return/bottom-strip", "track_error", "track_within_0.1"]
     fig, axes = plt.subplots(2, 4, figsize=(16, 7))
+    runs = results["runs"]
+    n = min(len(r["steps"]) for r in runs)
     for ax, k in zip(axes.flat, keys):
-        ax.plot(h["steps"], [r[k] for r in h["trained"]], "o-", label="FB-CPR (step 0 = untrained)")
-        ax.axhline(h["random"][k], color="gray", ls="--", label="random policy")
+        curves = np.array([[t[k] for t in r["trained"][:n]] for r in runs])
+        for r, c in zip(runs, curves):
+            ax.plot(r["steps"][:n], c, "-", color="tab:blue", alpha=0.3, lw=1)
+        ax.plot(runs[0]["steps"][:n], curves.mean(0), "o-", color="tab:blue",
+                label=f"FB-CPR, mean of {len(runs)} seeds (step 0 = untrained)")
+        ax.axhline(results["random"][k], color="gray", ls="--", label="random policy")
         ax.set_title(k)
         ax.set_xlabel("env steps")
     axes.flat[0].legend()
