@@ -132,8 +132,7 @@ def _reward_fn(task: RewardSpec) -> tuple[Callable[..., np.ndarray], str]:
     try:
         return get_reward(task.strip()), task.strip()
     except (KeyError, ValueError) as err:
-        msg = err.args[0] if err.args else str(err)
-        raise PromptError(f"unknown reward task {task!r}: {msg}") from err
+        raise PromptError(err.args[0] if err.args else str(err)) from err  # the registry's message names the task
 
 
 def goal_observation(target: GoalSpec, obs_dim: int) -> np.ndarray:
@@ -147,8 +146,7 @@ def goal_observation(target: GoalSpec, obs_dim: int) -> np.ndarray:
         try:
             obs = goal_obs(target)
         except (KeyError, ValueError) as err:
-            msg = err.args[0] if err.args else str(err)
-            raise PromptError(f"unknown goal {target!r}: {msg}") from err
+            raise PromptError(err.args[0] if err.args else str(err)) from err  # names the goal
     else:
         arr = np.asarray(target.detach().cpu() if isinstance(target, torch.Tensor) else target, dtype=np.float64)
         if arr.shape == (NQ,):
