@@ -10,9 +10,10 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from fbcpr.cli.common import cli_errors, console, err_console, progress
+from fbcpr.cli.common import HelpGroup, cli_errors, console, err_console, progress
 
-motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH), inspect, render.", no_args_is_help=True)
+motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH), inspect, render.", no_args_is_help=True,
+                          cls=HelpGroup)
 
 
 def _expand(sources: list[Path]) -> list[Path]:
