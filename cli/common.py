@@ -60,6 +60,13 @@ class HelpGroup(TyperGroup):
         return cmd
 
 
+def given(ctx: typer.Context, name: str) -> bool:
+    """Whether the user passed option `name` (its Python name) rather than leaving its default, so options that do
+    not apply to what was asked can be rejected instead of silently ignored."""
+    source = ctx.get_parameter_source(name)
+    return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
+
+
 def _bare_flags(params: list[Any]) -> list[Any]:
     for p in params:
         if getattr(p, "is_flag", False):

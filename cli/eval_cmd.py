@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from fbcpr.cli.common import cli_errors, console, err_console
+from fbcpr.cli.common import cli_errors, console, err_console, given
 
 
 class Suite(str, Enum):
@@ -29,6 +29,7 @@ def _load_motions(folder: Optional[Path]):
 
 @cli_errors
 def eval_command(
+    ctx: typer.Context,
     ckpt: str = typer.Argument(..., help="Checkpoint dir or hub id (loaded with fbcpr.BFM.load), or the floor "
                                          "baselines 'random' or 'zero'."),
     suite: Suite = typer.Option(Suite.all, "--suite", help="Which suite to run."),
@@ -50,6 +51,11 @@ def eval_command(
     from fbcpr.evaluation.report import print_report
     from fbcpr.evaluation.runner import evaluate
 
+    if suite == Suite.tracking:
+        extra = [f"--{n.replace('_', '-')}" for n in ("episodes", "steps", "fall_prob") if given(ctx, n)]
+        if extra:
+            raise typer.BadParameter(f"{', '.join(extra)}: reward and goal episodes only; the tracking suite plays "
+                                     "each clip once, from its first frame")
     names = [n.strip() for t in tasks or [] for n in t.split(",") if n.strip()] or None
     library = _load_motions(motions)
     agent = make_agent(ckpt, seed=seed)

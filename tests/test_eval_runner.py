@@ -130,6 +130,8 @@ def test_cli_eval_command(tmp_path):
     assert "move-ego-0-0" in res.output and (out / "results.json").exists()
     bad = runner.invoke(app, ["eval", "random", "--tasks", "fly-away", "--out", str(tmp_path / "x")])
     assert bad.exit_code == 1 and "neither a goal pose" in bad.output and "Traceback" not in bad.output
+    unused = runner.invoke(app, ["eval", "zero", "--suite", "tracking", "--episodes", "3", "--out", str(tmp_path / "y")])
+    assert unused.exit_code == 1 and "--episodes: reward and goal episodes only" in unused.output
     assert make_agent("random").name == "random"
 
 
