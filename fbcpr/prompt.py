@@ -180,6 +180,11 @@ def load_motion(spec: "str | Path") -> "Clip":
             return load_clip(path)
         except ClipFormatError as err:
             raise PromptError(str(err)) from None
+    if path.is_dir():
+        names = sorted(p.name for p in path.glob("*.npz"))
+        inside = f"pick one of its {len(names)} clips: {', '.join(names[:8])}{', ...' if len(names) > 8 else ''}" \
+            if names else "it holds no clip .npz files"
+        raise PromptError(f"{path}: is a directory, not a clip; {inside}")
     if path.suffix == "" and path.parent == Path("."):
         from motions.synthetic import default_clips
 

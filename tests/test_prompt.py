@@ -265,3 +265,15 @@ def test_unknown_names_suggest_the_closest_and_do_not_repeat_themselves():
     assert "did you mean 'jump-2'?" in str(err.value) and str(err.value).count("jupm-2") == 1
     with pytest.raises(PromptError, match=r"unknown goal 't-pose' \(did you mean 't_pose'\?\)"):
         goal_observation("t-pose", 358)
+
+
+def test_a_folder_given_as_a_clip_lists_its_clips(tmp_path):
+    from fbcpr.prompt import PromptError, load_motion
+    from motions.clip import save_clip
+    from motions.synthetic import stand
+
+    with pytest.raises(PromptError, match="is a directory, not a clip; it holds no clip"):
+        load_motion(tmp_path)
+    save_clip(stand(seconds=0.5), tmp_path / "stand.npz")
+    with pytest.raises(PromptError, match=r"is a directory, not a clip; pick one of its 1 clips: stand.npz"):
+        load_motion(tmp_path)
