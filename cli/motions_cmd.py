@@ -34,6 +34,33 @@ def _write_json_atomic(data: dict, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def _clipped_text(entry: dict) -> str:
+    """`12: L_Knee_y 8, R_Elbow_x 4, ...`: the total, then the joints that were clipped to their range most."""
+    joints = entry["clipped_joints"]
+    if not joints:
+        return "0"
+    named = ", ".join(f"{j} {n}" for j, n in list(joints.items())[:3])
+    return f"{entry['clipped_joint_frames']}: {named}{', ...' if len(joints) > 3 else ''}"
+
+
+def merge_summary(path: Path, clips: list[dict], failures: list[dict]) -> dict:
+    """import_summary.json of a folder after one more import: a clip written now replaces its earlier entry, a file
+    that imports now drops its earlier failure, everything else is kept."""
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        old = {}
+    old = old if isinstance(old, dict) else {}
+    by_clip = {c["clip"]: c for c in old.get("clips", []) if isinstance(c, dict) and "clip" in c}
+    by_clip.update({c["clip"]: c for c in clips})
+    imported = {c["file"] for c in clips}
+    by_file = {f["file"]: f for f in old.get("failures", []) if isinstance(f, dict) and f.get("file") not in imported}
+    by_file.update({f["file"]: f for f in failures})
+    merged = list(by_clip.values())
+    return {"clips": merged, "failures": list(by_file.values()),
+            "total_seconds": round(sum(c.get("seconds", 0.0) for c in merged), 3)}
+
+
 @motions_app.command("import")
 @cli_errors
 def import_cmd(
@@ -71,18 +98,19 @@ def import_cmd(
                 save_clip(clip, out / f"{stem}.npz")
                 done.append({"file": str(path), "clip": f"{stem}.npz", "frames": clip.n_frames,
                              "seconds": round(clip.seconds, 3), "clipped_joint_frames": report.clipped_total,
+                             "clipped_joints": dict(sorted(report.clipped.items(), key=lambda kv: -kv[1])),
                              "max_foot_penetration_m": round(report.max_penetration, 4),
                              "max_contact_gap_m": round(report.max_contact_gap, 4)})
             except Exception as err:  # one bad file must not stop the others
                 failed.append({"file": str(path), "reason": str(err).strip().splitlines()[0] if str(err) else type(err).__name__})
             bar.advance(task)
     seconds = sum(d["seconds"] for d in done)
-    _write_json_atomic({"clips": done, "failures": failed, "total_seconds": round(seconds, 3)}, out / "import_summary.json")
+    _write_json_atomic(merge_summary(out / "import_summary.json", done, failed), out / "import_summary.json")
     table = Table(title=f"Imported {len(done)} clip(s), {seconds:.1f} s of motion -> {out}")
-    for col in ("clip", "frames", "seconds", "clipped", "penetration (m)"):
-        table.add_column(col, justify="right" if col != "clip" else "left")
+    for col in ("clip", "frames", "seconds", "clipped joint-frames", "penetration (m)"):
+        table.add_column(col, justify="right" if col not in ("clip", "clipped joint-frames") else "left")
     for d in done:
-        table.add_row(d["clip"], str(d["frames"]), f"{d['seconds']:.1f}", str(d["clipped_joint_frames"]),
+        table.add_row(d["clip"], str(d["frames"]), f"{d['seconds']:.1f}", _clipped_text(d),
                       f"{d['max_foot_penetration_m']:.3f}")
     console.print(table)
     for f in failed:
