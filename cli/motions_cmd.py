@@ -5,6 +5,7 @@ import json
 import os
 import tempfile
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import typer
@@ -32,6 +33,23 @@ def _write_json_atomic(data: dict, path: Path) -> None:
     with os.fdopen(fd, "w") as fh:
         json.dump(data, fh, indent=2)
     os.replace(tmp, path)
+
+
+def read_joint_map(path: Path) -> dict[str, str]:
+    """A --joint-map file: YAML `keypoint: JointName` lines."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as err:
+        raise FileNotFoundError(f"--joint-map: cannot read {path} ({err.strerror})") from None
+    except yaml.MarkedYAMLError as err:
+        mark = err.problem_mark
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+        raise ValueError(f"--joint-map: {where}: invalid YAML: {err.problem}") from None
+    if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+        raise ValueError(f"--joint-map: {path} must map keypoint names to joint names (e.g. `l_toe: toe1-1.L`)")
+    return data
 
 
 def _clipped_text(entry: dict) -> str:
@@ -69,6 +87,9 @@ def import_cmd(
     up_axis: str = typer.Option(None, "--up-axis", help="Override the source up axis: y or z (AMASS: z, BVH: y)."),
     loop_seconds: float = typer.Option(0.0, "--loop-seconds", help="Repeat cyclic clips until they last this long."),
     no_cache: bool = typer.Option(False, "--no-cache", help="Ignore the conversion cache (~/.cache/fbcpr)."),
+    joint_map: Optional[Path] = typer.Option(None, "--joint-map", help="BVH: YAML mapping of keypoints to this "
+                                             "rig's joint names (l_hip, l_knee, l_ankle, l_toe, neck, head, "
+                                             "l_shoulder, l_elbow, l_wrist and r_ ones), for rigs not known here."),
 ) -> None:
     """Convert motion files to 30 Hz clips; a failing file is reported and skipped, and writes are atomic."""
     from motions.clip import save_clip
@@ -76,6 +97,7 @@ def import_cmd(
 
     if up_axis not in (None, "y", "z"):
         raise typer.BadParameter("--up-axis must be y or z")
+    names = read_joint_map(joint_map) if joint_map is not None else None
     files = _expand(sources)
     if not files:
         raise ValueError("no input files found")
@@ -88,7 +110,8 @@ def import_cmd(
         for path in files:
             bar.update(task, description=f"importing {path.name}")
             try:
-                clip, report = import_file(path, up_axis=up_axis, loop_seconds=loop_seconds, use_cache=not no_cache)
+                clip, report = import_file(path, up_axis=up_axis, loop_seconds=loop_seconds, use_cache=not no_cache,
+                                           joint_map=names)
                 stem = clip.name
                 k = 1
                 while stem in used:  # two sources with one name in a single run keep both

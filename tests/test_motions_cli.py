@@ -119,3 +119,20 @@ def test_render_writes_frames_or_says_why_not(tmp_path, monkeypatch):
         assert res.exit_code == 1 and "no OpenGL renderer available" in res.output
     res = runner.invoke(app, ["motions", "render", str(tmp_path / "missing.npz"), str(out)])
     assert res.exit_code == 1 and "no such clip file" in res.output
+
+
+def test_import_with_a_joint_map(tmp_path, monkeypatch):
+    monkeypatch.setenv("FBCPR_CACHE_DIR", str(tmp_path / "cache"))
+    text, _ = _squat_bvh(n=20)
+    (tmp_path / "odd.bvh").write_text(text.replace("JOINT LeftHand\n", "JOINT wrist_a\n"))
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["motions", "import", str(tmp_path / "odd.bvh"), "--out", str(out)], env={"COLUMNS": "300"})
+    assert res.exit_code == 1 and "no joint for l_wrist" in res.output
+    (tmp_path / "map.yaml").write_text("l_wrist: wrist_a\n")
+    res = runner.invoke(app, ["motions", "import", str(tmp_path / "odd.bvh"), "--out", str(out),
+                              "--joint-map", str(tmp_path / "map.yaml")], env={"COLUMNS": "300"})
+    assert res.exit_code == 0 and (out / "odd.npz").is_file(), res.output
+    (tmp_path / "bad.yaml").write_text("l_wrist: [wrist_a\n")
+    res = runner.invoke(app, ["motions", "import", str(tmp_path / "odd.bvh"), "--out", str(out),
+                              "--joint-map", str(tmp_path / "bad.yaml")], env={"COLUMNS": "300"})
+    assert res.exit_code == 1 and "bad.yaml:2:1: invalid YAML" in res.output
