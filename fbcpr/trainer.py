@@ -107,6 +107,7 @@ class Trainer:
         self._action_stats = np.zeros(3)  # sum |a|, saturated components, components (policy actions only)
         self._warned: set[str] = set()
         self._stop = False
+        self._deadline = math.inf  # time.monotonic() at which run() stops (its `deadline`)
         self._saved_at: int | None = None  # env steps of the checkpoint on disk (none yet)
         # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands for
         self._carried: dict[str, np.ndarray] | None = None
@@ -134,29 +135,32 @@ class Trainer:
             return agent.sample_z(n, online_b, expert_z)
 
     # --------------------------------------------------------------------------------- main loop
-    def run(self, max_env_steps: int | None = None) -> dict[str, Any]:
-        """Train until total_env_steps (or max_env_steps more steps, or a stop signal); returns a summary.
+    def run(self, max_env_steps: int | None = None, deadline: float | None = None) -> dict[str, Any]:
+        """Train until total_env_steps (or max_env_steps more steps, or the `time.monotonic()` deadline, or a stop
+        signal); returns a summary. The deadline is checked as often as a signal, so a time budget holds to within
+        one update or tracking step plus the final checkpoint.
 
         A stop signal is sticky: later calls return at once with `interrupted=True`, so loops over chunks
         must check it."""
         tc = self.cfg.train
+        self._deadline = math.inf if deadline is None else deadline
         stop_at = tc.total_env_steps if max_env_steps is None else min(tc.total_env_steps, self.env_steps + max_env_steps)
         handlers = self._install_signals()
         t0, steps0 = time.perf_counter(), self.env_steps
         steps_per_phase = max(1, math.ceil(tc.rollout_steps / tc.num_envs))
         try:
             with self._progress(stop_at) as (progress, task):
-                while self.env_steps < stop_at and not self._stop:
+                while self.env_steps < stop_at and not self._halt():
                     for _ in range(steps_per_phase):
                         self._env_step()
-                        if self._stop:
+                        if self._halt():
                             break
                     if self.env_steps >= tc.warmup_steps and len(self.buffer) >= self.cfg.agent.batch_size:
                         for _ in range(tc.updates_per_rollout):
-                            if self._stop:
+                            if self._halt():
                                 break
                             self._update()
-                    if self._stop:
+                    if self._halt():
                         break
                     self._periodic(t0, steps0, stop_at)
                     if progress is not None:
@@ -170,6 +174,10 @@ class Trainer:
                 self._writer.flush()
         return {"env_steps": self.env_steps, "updates": self.updates, "checkpoint": str(path),
                 "interrupted": self._stop, "seconds": time.perf_counter() - t0, **self.last_metrics}
+
+    def _halt(self) -> bool:
+        """Stop at the next safe point: a stop signal came, or the run's deadline passed."""
+        return self._stop or time.monotonic() >= self._deadline
 
     def _env_step(self) -> None:
         tc, agent, env = self.cfg.train, self.agent, self.bundle.env
@@ -232,7 +240,7 @@ class Trainer:
         tc = self.cfg.train
         rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
         scores = tracking_scores(self.agent.model, self.bundle, self.cfg.agent.seq_length, tc.priority_max_clips,
-                                 self.cfg.env.max_episode_steps, rng, stop=lambda: self._stop)
+                                 self.cfg.env.max_episode_steps, rng, stop=self._halt)
         if scores is None:  # stopped mid-episode: no partial scores, priorities untouched
             return {}
         for name, (e, _) in scores.items():
@@ -450,8 +458,8 @@ class Trainer:
 
     def _log_line(self, total: int, rate: float) -> None:
         """One plain progress line (for logs and CI, where the live bar is off)."""
-        left = (total - self.env_steps) / rate if rate > 0 else math.inf
-        eta = "?" if math.isinf(left) else time.strftime("%H:%M:%S", time.gmtime(left))
+        left = int((total - self.env_steps) / rate) if rate > 0 else None
+        eta = "?" if left is None else f"{left // 3600}:{left % 3600 // 60:02d}:{left % 60:02d}"
         print(f"{self.env_steps:,}/{total:,} steps ({100 * self.env_steps / total:.1f}%) {rate:,.0f} steps/s "
               f"eta {eta} | {self._metric_text()}", flush=True)
 

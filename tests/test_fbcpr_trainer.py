@@ -299,3 +299,15 @@ def test_memmapped_buffer_is_removed_when_training_ends(tmp_path):
 
     train(tiny_cfg(total_env_steps=60, buffer_memmap_mb=0.0), tmp_path, progress=False)
     assert not (tmp_path / "buffer_mmap").exists() and (tmp_path / "checkpoints" / "latest").exists()
+
+
+def test_a_deadline_is_kept_to_within_a_step(tmp_path):
+    import time
+
+    tr = Trainer(tiny_cfg(), tmp_path, progress=False)
+    tr.run(max_env_steps=60)                      # imports and first-call costs out of the way
+    t0 = time.monotonic()
+    summary = tr.run(deadline=t0 + 1.0)
+    took = time.monotonic() - t0
+    assert not summary["interrupted"] and summary["env_steps"] > 60
+    assert took < 1.0 * 1.15 + 0.3, took           # the budget plus the final checkpoint, not whole chunks
