@@ -25,14 +25,10 @@ PRETRAINED_NOTE = "FB-CPR, small networks, trained on 2 CPU cores on the DeepMim
 
 
 def find_config(path: Optional[Path]) -> Path:
-    """The given config, else the quickstart config shipped inside the package (fbcpr.configs)."""
-    if path is not None:
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: config file not found")
-        return path
-    from importlib import resources
+    """The given config (a file or a shipped config's name), else the shipped quickstart config."""
+    from fbcpr.config import find_config as find
 
-    return Path(str(resources.files("fbcpr.configs") / DEFAULT_CONFIG))
+    return find(path if path is not None else DEFAULT_CONFIG)
 
 
 def train_for(trainer: Any, seconds: float | None, steps: int | None) -> dict[str, Any]:
