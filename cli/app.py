@@ -3,24 +3,22 @@ from __future__ import annotations
 
 import typer
 
-from fbcpr.cli import env_cmd
-from fbcpr.cli import eval_cmd
-from fbcpr.cli import common, demo_cmd, prompt_cmd
-from fbcpr.cli import train_cmd
-from fbcpr.cli import motions_cmd
-from fbcpr.cli import export_cmd
+from fbcpr.cli import common, demo_cmd, env_cmd, eval_cmd, export_cmd, motions_cmd, prompt_cmd, tasks_cmd, train_cmd
 
-app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid.", no_args_is_help=True)
+app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid.", no_args_is_help=True,
+                  cls=common.HelpGroup)
 
 # Command modules: each defines `register(app: typer.Typer) -> None`. Add one import + one call per module.
-env_cmd.register(app)
-eval_cmd.register(app)
+# `fbcpr --help` lists commands in this order: the main ones first.
 common.register(app)
-prompt_cmd.register(app)
-demo_cmd.register(app)
 train_cmd.register(app)
+prompt_cmd.register(app)
+eval_cmd.register(app)
+demo_cmd.register(app)
+tasks_cmd.register(app)
 motions_cmd.register(app)
 export_cmd.register(app)
+env_cmd.register(app)
 
 
 def main() -> None:

@@ -5,9 +5,10 @@ import functools
 import os
 import sys
 from collections.abc import Callable
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import typer
+from typer.core import TyperGroup
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -28,16 +29,54 @@ def debug_enabled() -> bool:
     return _state["debug"] or _env_debug()
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        import fbcpr
+
+        console.print(f"fbcpr {fbcpr.__version__}", highlight=False)
+        raise typer.Exit()
+
+
 def _global_options(
     debug: bool = typer.Option(False, "--debug", help="Show full tracebacks on errors (also FBCPR_DEBUG=1)."),
+    version: bool = typer.Option(False, "--version", is_eager=True, callback=_print_version,
+                                 help="Print the version and exit."),
 ) -> None:
     """FB-CPR behavioral foundation model for the SMPL humanoid."""
     _state["debug"] = debug  # set on every invocation, so one --debug run does not leak into the next
 
 
+class HelpGroup(TyperGroup):
+    """A command group whose help shows on/off flags bare (`--resume`), not as if they took a value
+    (typer renders every flag's type, `--resume <bool>`)."""
+
+    def get_params(self, ctx: typer.Context) -> list[Any]:
+        return _bare_flags(super().get_params(ctx))
+
+    def get_command(self, ctx: typer.Context, name: str) -> Any:
+        cmd = super().get_command(ctx, name)
+        if cmd is not None and not isinstance(cmd, HelpGroup):
+            _bare_flags(cmd.get_params(ctx))
+        return cmd
+
+
+def given(ctx: typer.Context, name: str) -> bool:
+    """Whether the user passed option `name` (its Python name) rather than leaving its default, so options that do
+    not apply to what was asked can be rejected instead of silently ignored."""
+    source = ctx.get_parameter_source(name)
+    return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
+
+
+def _bare_flags(params: list[Any]) -> list[Any]:
+    for p in params:
+        if getattr(p, "is_flag", False):
+            p.metavar = ""
+    return params
+
+
 def register(app: typer.Typer) -> None:
     """Install the global `--debug` option as the app callback (the app has no other callback)."""
-    app.callback()(_global_options)
+    app.callback(cls=HelpGroup)(_global_options)
 
 
 def cli_errors(fn: F) -> F:

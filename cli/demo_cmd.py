@@ -25,33 +25,18 @@ PRETRAINED_NOTE = "FB-CPR, small networks, trained on 2 CPU cores on the DeepMim
 
 
 def find_config(path: Optional[Path]) -> Path:
-    """The given config, else the quickstart config shipped inside the package (fbcpr.configs)."""
-    if path is not None:
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: config file not found")
-        return path
-    from importlib import resources
+    """The given config (a file or a shipped config's name), else the shipped quickstart config."""
+    from fbcpr.config import find_config as find
 
-    return Path(str(resources.files("fbcpr.configs") / DEFAULT_CONFIG))
+    return find(path if path is not None else DEFAULT_CONFIG)
 
 
 def train_for(trainer: Any, seconds: float | None, steps: int | None) -> dict[str, Any]:
-    """Run the trainer for `steps` env steps, or for about `seconds` in a few chunks sized by the measured speed."""
+    """Run the trainer for `steps` env steps, or until `seconds` have passed (the trainer checks the deadline at
+    every env step and update, so the budget holds to within one update plus the final checkpoint)."""
     if steps is not None:
         return trainer.run(max_env_steps=steps)
-    tc = trainer.cfg.train
-    deadline = time.monotonic() + seconds
-    chunk = tc.warmup_steps + 4 * tc.rollout_steps  # includes some updates, so the speed estimate is not warm-up's
-    while True:
-        t0, before = time.monotonic(), trainer.env_steps
-        summary = trainer.run(max_env_steps=chunk)
-        left = deadline - time.monotonic()
-        done = trainer.env_steps - before
-        if summary["interrupted"] or done == 0 or left < max(5.0, 0.05 * seconds) \
-                or trainer.env_steps >= tc.total_env_steps:
-            return summary
-        rate = done / max(time.monotonic() - t0, 1e-6)
-        chunk = max(tc.rollout_steps, int(rate * left * (0.5 if left > 0.3 * seconds else 0.9)))
+    return trainer.run(deadline=time.monotonic() + seconds)
 
 
 def score_rows(results: dict[str, Any], reward: str, goal: str, clip: str) -> list[tuple[str, str, float, bool]]:

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from fbcpr.cli.common import cli_errors, console
+from fbcpr.cli.common import cli_errors, console, err_console, given
 
 
 class Suite(str, Enum):
@@ -29,6 +29,7 @@ def _load_motions(folder: Optional[Path]):
 
 @cli_errors
 def eval_command(
+    ctx: typer.Context,
     ckpt: str = typer.Argument(..., help="Checkpoint dir or hub id (loaded with fbcpr.BFM.load), or the floor "
                                          "baselines 'random' or 'zero'."),
     suite: Suite = typer.Option(Suite.all, "--suite", help="Which suite to run."),
@@ -41,7 +42,8 @@ def eval_command(
                                            "MoCap test states (default: the built-in synthetic clips)."),
     fall_prob: float = typer.Option(0.5, "--fall-prob", min=0.0, max=1.0, help="Share of Fall states in the test "
                                     "initial distribution."),
-    out: Path = typer.Option(Path("eval_out"), "--out", help="Directory for results.json and plots."),
+    out: Path = typer.Option(Path("eval_out"), "--out", help="Directory for results.json (rewritten after every "
+                             "task, so Ctrl-C keeps what is done) and plots."),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial states (and of the random baseline)."),
 ) -> None:
     """Evaluate an agent zero-shot on reward tasks, goal poses and motion tracking (paper App. C.3)."""
@@ -49,11 +51,22 @@ def eval_command(
     from fbcpr.evaluation.report import print_report
     from fbcpr.evaluation.runner import evaluate
 
+    if suite == Suite.tracking:
+        extra = [f"--{n.replace('_', '-')}" for n in ("episodes", "steps", "fall_prob") if given(ctx, n)]
+        if extra:
+            raise typer.BadParameter(f"{', '.join(extra)}: reward and goal episodes only; the tracking suite plays "
+                                     "each clip once, from its first frame")
     names = [n.strip() for t in tasks or [] for n in t.split(",") if n.strip()] or None
     library = _load_motions(motions)
     agent = make_agent(ckpt, seed=seed)
-    results = evaluate(agent, suite.value, tasks=names, episodes=episodes, motions=library, out=out, steps=steps,
-                       fall_prob=fall_prob, seed=seed, agent_name=ckpt)
+    try:
+        results = evaluate(agent, suite.value, tasks=names, episodes=episodes, motions=library, out=out, steps=steps,
+                           fall_prob=fall_prob, seed=seed, agent_name=ckpt)
+    except KeyboardInterrupt:
+        done = out / "results.json"
+        err_console.print(f"[bold red]interrupted[/]: " + (f"the tasks done so far are in {done}" if done.is_file()
+                                                            else "no task had finished"), highlight=False)
+        raise typer.Exit(130) from None
     print_report(results, console)
     console.print(f"results and plots written to [bold]{out}[/]")
 

@@ -5,14 +5,16 @@ import json
 import os
 import tempfile
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import typer
 from rich.table import Table
 
-from fbcpr.cli.common import cli_errors, console, err_console, progress
+from fbcpr.cli.common import HelpGroup, cli_errors, console, err_console, progress
 
-motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH), inspect, render.", no_args_is_help=True)
+motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH), inspect, render.", no_args_is_help=True,
+                          cls=HelpGroup)
 
 
 def _expand(sources: list[Path]) -> list[Path]:
@@ -33,6 +35,50 @@ def _write_json_atomic(data: dict, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def read_joint_map(path: Path) -> dict[str, str]:
+    """A --joint-map file: YAML `keypoint: JointName` lines."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as err:
+        raise FileNotFoundError(f"--joint-map: cannot read {path} ({err.strerror})") from None
+    except yaml.MarkedYAMLError as err:
+        mark = err.problem_mark
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+        raise ValueError(f"--joint-map: {where}: invalid YAML: {err.problem}") from None
+    if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+        raise ValueError(f"--joint-map: {path} must map keypoint names to joint names (e.g. `l_toe: toe1-1.L`)")
+    return data
+
+
+def _clipped_text(entry: dict) -> str:
+    """`12: L_Knee_y 8, R_Elbow_x 4, ...`: the total, then the joints that were clipped to their range most."""
+    joints = entry["clipped_joints"]
+    if not joints:
+        return "0"
+    named = ", ".join(f"{j} {n}" for j, n in list(joints.items())[:3])
+    return f"{entry['clipped_joint_frames']}: {named}{', ...' if len(joints) > 3 else ''}"
+
+
+def merge_summary(path: Path, clips: list[dict], failures: list[dict]) -> dict:
+    """import_summary.json of a folder after one more import: a clip written now replaces its earlier entry, a file
+    that imports now drops its earlier failure, everything else is kept."""
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        old = {}
+    old = old if isinstance(old, dict) else {}
+    by_clip = {c["clip"]: c for c in old.get("clips", []) if isinstance(c, dict) and "clip" in c}
+    by_clip.update({c["clip"]: c for c in clips})
+    imported = {c["file"] for c in clips}
+    by_file = {f["file"]: f for f in old.get("failures", []) if isinstance(f, dict) and f.get("file") not in imported}
+    by_file.update({f["file"]: f for f in failures})
+    merged = list(by_clip.values())
+    return {"clips": merged, "failures": list(by_file.values()),
+            "total_seconds": round(sum(c.get("seconds", 0.0) for c in merged), 3)}
+
+
 @motions_app.command("import")
 @cli_errors
 def import_cmd(
@@ -41,6 +87,9 @@ def import_cmd(
     up_axis: str = typer.Option(None, "--up-axis", help="Override the source up axis: y or z (AMASS: z, BVH: y)."),
     loop_seconds: float = typer.Option(0.0, "--loop-seconds", help="Repeat cyclic clips until they last this long."),
     no_cache: bool = typer.Option(False, "--no-cache", help="Ignore the conversion cache (~/.cache/fbcpr)."),
+    joint_map: Optional[Path] = typer.Option(None, "--joint-map", help="BVH: YAML mapping of keypoints to this "
+                                             "rig's joint names (l_hip, l_knee, l_ankle, l_toe, neck, head, "
+                                             "l_shoulder, l_elbow, l_wrist and r_ ones), for rigs not known here."),
 ) -> None:
     """Convert motion files to 30 Hz clips; a failing file is reported and skipped, and writes are atomic."""
     from motions.clip import save_clip
@@ -48,6 +97,7 @@ def import_cmd(
 
     if up_axis not in (None, "y", "z"):
         raise typer.BadParameter("--up-axis must be y or z")
+    names = read_joint_map(joint_map) if joint_map is not None else None
     files = _expand(sources)
     if not files:
         raise ValueError("no input files found")
@@ -60,7 +110,8 @@ def import_cmd(
         for path in files:
             bar.update(task, description=f"importing {path.name}")
             try:
-                clip, report = import_file(path, up_axis=up_axis, loop_seconds=loop_seconds, use_cache=not no_cache)
+                clip, report = import_file(path, up_axis=up_axis, loop_seconds=loop_seconds, use_cache=not no_cache,
+                                           joint_map=names)
                 stem = clip.name
                 k = 1
                 while stem in used:  # two sources with one name in a single run keep both
@@ -70,18 +121,19 @@ def import_cmd(
                 save_clip(clip, out / f"{stem}.npz")
                 done.append({"file": str(path), "clip": f"{stem}.npz", "frames": clip.n_frames,
                              "seconds": round(clip.seconds, 3), "clipped_joint_frames": report.clipped_total,
+                             "clipped_joints": dict(sorted(report.clipped.items(), key=lambda kv: -kv[1])),
                              "max_foot_penetration_m": round(report.max_penetration, 4),
                              "max_contact_gap_m": round(report.max_contact_gap, 4)})
             except Exception as err:  # one bad file must not stop the others
                 failed.append({"file": str(path), "reason": str(err).strip().splitlines()[0] if str(err) else type(err).__name__})
             bar.advance(task)
     seconds = sum(d["seconds"] for d in done)
-    _write_json_atomic({"clips": done, "failures": failed, "total_seconds": round(seconds, 3)}, out / "import_summary.json")
+    _write_json_atomic(merge_summary(out / "import_summary.json", done, failed), out / "import_summary.json")
     table = Table(title=f"Imported {len(done)} clip(s), {seconds:.1f} s of motion -> {out}")
-    for col in ("clip", "frames", "seconds", "clipped", "penetration (m)"):
-        table.add_column(col, justify="right" if col != "clip" else "left")
+    for col in ("clip", "frames", "seconds", "clipped joint-frames", "penetration (m)"):
+        table.add_column(col, justify="right" if col not in ("clip", "clipped joint-frames") else "left")
     for d in done:
-        table.add_row(d["clip"], str(d["frames"]), f"{d['seconds']:.1f}", str(d["clipped_joint_frames"]),
+        table.add_row(d["clip"], str(d["frames"]), f"{d['seconds']:.1f}", _clipped_text(d),
                       f"{d['max_foot_penetration_m']:.3f}")
     console.print(table)
     for f in failed:

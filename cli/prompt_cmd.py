@@ -153,29 +153,34 @@ VIDEO_HELP = "Write an .mp4 of the rollout here (needs an OpenGL backend)."
 @cli_errors
 def prompt_command(
     ckpt: str = typer.Argument(..., help=CKPT_HELP),
-    reward: Optional[str] = typer.Option(None, "--reward", help="Reward task, e.g. jump-2 or move-ego-0-2*raisearms-h-h."),
-    goal: Optional[str] = typer.Option(None, "--goal", help="Goal pose name, e.g. t_pose."),
+    reward: Optional[str] = typer.Option(None, "--reward", help="Reward task, e.g. jump-2 or move-ego-0-2*raisearms-h-h "
+                                         "(`fbcpr tasks` lists them)."),
+    goal: Optional[str] = typer.Option(None, "--goal", help="Goal pose name, e.g. t_pose (`fbcpr tasks` lists them)."),
     imitate: Optional[str] = typer.Option(None, "--imitate", help="Clip .npz (or built-in clip name, e.g. walk) to "
                                           "imitate with one z (ER_FB)."),
     steps: int = typer.Option(300, "--steps", min=1, help="Episode length in control steps (30 Hz)."),
     video: Optional[Path] = typer.Option(None, "--video", help=VIDEO_HELP),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial state."),
-    method: str = typer.Option("weighted", "--method", help="Reward inference: weighted (paper) or regression."),
+    method: Optional[str] = typer.Option(None, "--method", help="With --reward: reward inference, weighted (paper, "
+                                         "the default) or regression."),
     device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
 ) -> None:
-    """Prompt a model with one reward, goal or clip, roll it out and print return and metrics."""
+    """Prompt a model with one reward, goal or clip, roll it out and print return and metrics (`fbcpr tasks` lists
+    the reward tasks and goal poses)."""
     from fbcpr.evaluation.metrics import d_smpl, emd, goal_proximity, goal_success
     from fbcpr.prompt import goal_observation
 
     given = [x for x in (reward, goal, imitate) if x is not None]
     if len(given) != 1:
         raise typer.BadParameter("give exactly one of --reward, --goal or --imitate")
+    if method is not None and reward is None:
+        raise typer.BadParameter("--method chooses how a reward is inferred: it applies to --reward only")
     if video is not None:
         require_renderer()
     bfm = _load(ckpt, device)
     clip = None
     if reward is not None:
-        z, title = bfm.prompt.reward(reward, method=method), f"reward {reward}"
+        z, title = bfm.prompt.reward(reward, method=method or "weighted"), f"reward {reward}"
     elif goal is not None:
         z, title = bfm.prompt.goal(goal), f"goal {goal}"
         target = goal_observation(goal, bfm.obs_dim)[0]

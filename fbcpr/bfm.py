@@ -298,7 +298,7 @@ def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: 
             raise CheckpointError(f"{path}: not a checkpoint directory (expected a folder with {MODEL_FILE})")
         return _latest_in_run(path)
     text = str(src)
-    if not _REPO_ID.match(text) or text.startswith((".", "/", "~")):
+    if not _REPO_ID.match(text) or _looks_like_path(text):
         raise CheckpointError(f"{text}: no such checkpoint directory")
     folder = Path(_download(text, revision, cache_dir))
     missing = [f for f in (MODEL_FILE, CONFIG_FILE, MANIFEST_FILE) if not (folder / f).is_file()]
@@ -306,6 +306,13 @@ def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: 
         raise CheckpointError(f"Hugging Face repo {text!r} has no {missing[0]}: it is not an fbcpr checkpoint "
                               f"(or its download is incomplete)")
     return folder
+
+
+def _looks_like_path(text: str) -> bool:
+    """A local path that does not exist rather than a Hub repo id ('owner/name'): it starts with '.', '/' or '~',
+    its owner part has a dot or is a local folder (runs/x with runs/ here)."""
+    owner = text.split("/")[0]
+    return text.startswith((".", "/", "~")) or "." in owner or Path(owner).is_dir()
 
 
 def _latest_in_run(path: Path) -> Path:

@@ -110,6 +110,18 @@ def _read_tensors(root: Path, name: str, manifest: dict[str, Any]) -> tuple[dict
     return tensors, meta
 
 
+def read_trainer_meta(path: str | Path) -> dict[str, Any]:
+    """The JSON counters of a checkpoint's trainer state, read from the safetensors header only (no tensors)."""
+    file = Path(path) / TRAINER_FILE
+    try:
+        with safetensors.safe_open(str(file), framework="pt") as f:
+            return json.loads((f.metadata() or {}).get(_META_KEY, "{}"))
+    except FileNotFoundError:
+        raise CheckpointError(f"{file}: missing (an inference-only checkpoint cannot be resumed)") from None
+    except Exception as e:  # safetensors raises several types on malformed files
+        raise CheckpointError(f"{file}: unreadable safetensors file ({e})") from None
+
+
 def _verify(path: Path, manifest: dict[str, Any]) -> None:
     entry = manifest.get("files", {}).get(path.name)
     if not path.is_file():

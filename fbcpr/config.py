@@ -7,6 +7,7 @@ Defaults are the paper's values (App. C.5, Tables 3, 5-7, 9); `model.preset` pic
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import types
 import typing
@@ -124,6 +125,7 @@ class TrainConfig:
     eval_every: int = _f(0, NON_NEGATIVE)
     checkpoint_every: int = _f(1_000_000, NON_NEGATIVE)
     keep_checkpoints: int = _f(3, POSITIVE)
+    keep_every: int = _f(0, NON_NEGATIVE)
     log_every: int = _f(10_000, POSITIVE)
     reward_buffer_size: int = _f(100_000, NON_NEGATIVE)
     save_buffer: bool = _f(False)
@@ -232,16 +234,55 @@ def model_config_from_dict(data: dict[str, Any]) -> ModelConfig:
     return _build(ModelConfig, data, "model")
 
 
+#: Config keys that hold a file or folder path ("synthetic" names the built-in clips, not a path).
+PATH_KEYS = (("env", "motions"),)
+
+
 def load_config(path: str | Path) -> Config:
-    """Read a YAML config file (safe_load only)."""
+    """Read a YAML config file (safe_load only); relative paths in it are taken from the file's folder, so a
+    config works from any working directory."""
     path = Path(path)
     try:
         data = yaml.safe_load(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found") from None
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+        raise ConfigError(f"{where}: invalid YAML: {e.problem or e.context}") from None
     except yaml.YAMLError as e:
         raise ConfigError(f"{path}: invalid YAML ({e})") from None
-    return config_from_dict(data or {})
+    cfg = config_from_dict(data or {})
+    for section, key in PATH_KEYS:
+        part = getattr(cfg, section)
+        value = getattr(part, key)
+        if value != "synthetic" and not Path(value).expanduser().is_absolute():
+            setattr(part, key, str((path.parent / value).resolve()))
+    return cfg
+
+
+def shipped_configs() -> dict[str, Path]:
+    """The configs that ship inside the package (fbcpr.configs), by name."""
+    from importlib import resources
+
+    folder = Path(str(resources.files("fbcpr.configs")))
+    return {p.stem: p for p in sorted(folder.glob("*.yaml"))}
+
+
+def find_config(spec: str | Path) -> Path:
+    """A config file path, or the name of a shipped config (`small`, `quickstart.yaml`)."""
+    path = Path(spec).expanduser()
+    if path.is_file():
+        return path
+    shipped = shipped_configs()
+    name = path.stem if path.suffix in ("", ".yaml", ".yml") and path.parent == Path(".") else None
+    if name in shipped:
+        return shipped[name]
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a directory, not a config file")
+    close = difflib.get_close_matches(path.stem, list(shipped), n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    raise ConfigError(f"{spec}: no such config file, nor a shipped config ({', '.join(shipped)}){hint}")
 
 
 def config_to_dict(cfg: Any) -> dict[str, Any]:

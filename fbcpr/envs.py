@@ -96,10 +96,13 @@ def tracking_latents(model: Any, obs_seq: np.ndarray, seq_length: int) -> torch.
         return project_sphere(tracking_sums(b, seq_length))
 
 
-def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: int, max_steps: int) -> list[np.ndarray]:
+def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: int, max_steps: int,
+                stop: Callable[[], bool] = lambda: False) -> list[np.ndarray] | None:
     """Roll out the policy tracking each clip from its first frame (one env per clip, all in one batch).
 
-    Returns the agent's observation trajectories, each as long as min(clip length, max_steps + 1)."""
+    Returns the agent's observation trajectories, each as long as min(clip length, max_steps + 1), or None
+    when `stop()` turns true (checked every step, so a Ctrl-C during training's tracking pass is answered
+    within one env step rather than after all clips)."""
     refs = [bundle.clip_obs(i)[: max_steps + 1] for i in clip_ids]
     horizon = max(len(r) for r in refs) - 1
     zs = [tracking_latents(model, r, seq_length) for r in refs]
@@ -110,6 +113,8 @@ def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: 
         obs, _ = env.reset(seed=0, options={"qpos": np.stack([s[0] for s in starts]), "qvel": np.stack([s[1] for s in starts])})
         traj = [obs]
         for t in range(horizon):
+            if stop():
+                return None
             action = model.act(torch.as_tensor(obs, device=model.device), z_all[:, t], mean=True)
             obs, *_ , info = env.step(action.cpu().numpy())
             traj.append(info["final_obs"])
@@ -120,11 +125,14 @@ def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: 
 
 
 def tracking_scores(model: Any, bundle: EnvBundle, seq_length: int, max_clips: int, max_steps: int,
-                    rng: np.random.Generator) -> dict[str, tuple[float, bool]]:
-    """{clip name: (EMD, success)} for up to max_clips clips (all of them when the library is small enough)."""
+                    rng: np.random.Generator, stop: Callable[[], bool] = lambda: False) -> dict[str, tuple[float, bool]] | None:
+    """{clip name: (EMD, success)} for up to max_clips clips (all of them when the library is small enough);
+    None when `stop()` interrupted the rollout."""
     n = len(bundle.library.names)
     ids = list(range(n)) if n <= max_clips else sorted(rng.choice(n, size=max_clips, replace=False).tolist())
-    trajs = track_clips(model, bundle, ids, seq_length, max_steps)
+    trajs = track_clips(model, bundle, ids, seq_length, max_steps, stop)
+    if trajs is None:
+        return None
     out = {}
     for i, traj in zip(ids, trajs):
         ref = bundle.clip_obs(i)[: len(traj)]

@@ -132,8 +132,7 @@ def _reward_fn(task: RewardSpec) -> tuple[Callable[..., np.ndarray], str]:
     try:
         return get_reward(task.strip()), task.strip()
     except (KeyError, ValueError) as err:
-        msg = err.args[0] if err.args else str(err)
-        raise PromptError(f"unknown reward task {task!r}: {msg}") from err
+        raise PromptError(err.args[0] if err.args else str(err)) from err  # the registry's message names the task
 
 
 def goal_observation(target: GoalSpec, obs_dim: int) -> np.ndarray:
@@ -147,8 +146,7 @@ def goal_observation(target: GoalSpec, obs_dim: int) -> np.ndarray:
         try:
             obs = goal_obs(target)
         except (KeyError, ValueError) as err:
-            msg = err.args[0] if err.args else str(err)
-            raise PromptError(f"unknown goal {target!r}: {msg}") from err
+            raise PromptError(err.args[0] if err.args else str(err)) from err  # names the goal
     else:
         arr = np.asarray(target.detach().cpu() if isinstance(target, torch.Tensor) else target, dtype=np.float64)
         if arr.shape == (NQ,):
@@ -182,6 +180,11 @@ def load_motion(spec: "str | Path") -> "Clip":
             return load_clip(path)
         except ClipFormatError as err:
             raise PromptError(str(err)) from None
+    if path.is_dir():
+        names = sorted(p.name for p in path.glob("*.npz"))
+        inside = f"pick one of its {len(names)} clips: {', '.join(names[:8])}{', ...' if len(names) > 8 else ''}" \
+            if names else "it holds no clip .npz files"
+        raise PromptError(f"{path}: is a directory, not a clip; {inside}")
     if path.suffix == "" and path.parent == Path("."):
         from motions.synthetic import default_clips
 

@@ -27,11 +27,13 @@ from typing import Any, Callable
 import numpy as np
 import torch
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import BarColumn, Progress, ProgressColumn, Task, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Column
+from rich.text import Text
 
 from fbcpr.agent import FBCPRAgent
 from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.checkpoint import CheckpointError, load_checkpoint, load_state_strict, save_checkpoint
+from fbcpr.checkpoint import CheckpointError, load_checkpoint, load_state_strict, read_trainer_meta, save_checkpoint
 from fbcpr.config import Config, ConfigError
 from fbcpr.envs import EnvBundle, make_env, tracking_scores
 
@@ -46,6 +48,10 @@ WARNINGS: tuple[tuple[str, Callable[[dict[str, float]], bool], str], ...] = (
     ("bang-bang", lambda m: m.get("action_saturated", 0.0) > 0.5,
      "over half of the policy's action components sit beyond 0.9: a bang-bang actor, which falls"),
 )
+
+
+#: Signals that end a run at the next safe point with a checkpoint: Ctrl-C, `kill`, and the terminal going away.
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 def resolve_device(name: str) -> torch.device:
@@ -63,13 +69,12 @@ class Trainer:
                  evaluate: Callable[[FBCPRAgent], dict[str, float]] | None = None, progress: bool = True,
                  init_from: str | Path | None = None) -> None:
         self.out = Path(out_dir)
-        self.out.mkdir(parents=True, exist_ok=True)
         self.progress_enabled = progress
         self.custom_eval = evaluate
         tc = cfg.train
         if tc.torch_threads:
             torch.set_num_threads(tc.torch_threads)
-        self.device = resolve_device(tc.device)
+        self.device = resolve_device(tc.device)  # device and env fail before the run directory exists
         self.bundle: EnvBundle = make_env(cfg.env, tc.num_envs, tc.seed)
         b = self.bundle
         for key, have in (("obs_dim", b.obs_dim), ("action_dim", b.action_dim)):
@@ -87,6 +92,7 @@ class Trainer:
         self.warm_started = init_from is not None and not resume
         if self.warm_started:
             self._warm_start(init_from)
+        self.out.mkdir(parents=True, exist_ok=True)
         specs = transition_specs(b.obs_dim, b.action_dim, cfg.model.z_dim, b.nq, b.nv)
         big = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) > tc.buffer_memmap_mb * 2**20
         self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if big else None)
@@ -101,6 +107,12 @@ class Trainer:
         self._action_stats = np.zeros(3)  # sum |a|, saturated components, components (policy actions only)
         self._warned: set[str] = set()
         self._stop = False
+        self._deadline = math.inf  # time.monotonic() at which run() stops (its `deadline`)
+        self._saved_at: int | None = None  # env steps of the checkpoint on disk (none yet)
+        # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands for
+        self._carried: dict[str, np.ndarray] | None = None
+        self._carried_weight = 0
+        self._last_line = 0.0
         self.obs, info = b.env.reset(seed=tc.seed)
         self.z = self._sample_rollout_z(tc.num_envs)
         self.z_age = np.zeros(tc.num_envs, dtype=np.int64)
@@ -123,31 +135,38 @@ class Trainer:
             return agent.sample_z(n, online_b, expert_z)
 
     # --------------------------------------------------------------------------------- main loop
-    def run(self, max_env_steps: int | None = None) -> dict[str, Any]:
-        """Train until total_env_steps (or max_env_steps more steps, or a stop signal); returns a summary.
+    def run(self, max_env_steps: int | None = None, deadline: float | None = None) -> dict[str, Any]:
+        """Train until total_env_steps (or max_env_steps more steps, or the `time.monotonic()` deadline, or a stop
+        signal); returns a summary. The deadline is checked as often as a signal, so a time budget holds to within
+        one update or tracking step plus the final checkpoint.
 
         A stop signal is sticky: later calls return at once with `interrupted=True`, so loops over chunks
         must check it."""
         tc = self.cfg.train
+        self._deadline = math.inf if deadline is None else deadline
         stop_at = tc.total_env_steps if max_env_steps is None else min(tc.total_env_steps, self.env_steps + max_env_steps)
         handlers = self._install_signals()
         t0, steps0 = time.perf_counter(), self.env_steps
         steps_per_phase = max(1, math.ceil(tc.rollout_steps / tc.num_envs))
         try:
             with self._progress(stop_at) as (progress, task):
-                while self.env_steps < stop_at and not self._stop:
+                while self.env_steps < stop_at and not self._halt():
                     for _ in range(steps_per_phase):
                         self._env_step()
-                        if self._stop:
+                        if self._halt():
                             break
-                    if not self._stop and self.env_steps >= tc.warmup_steps and len(self.buffer) >= self.cfg.agent.batch_size:
+                    if self.env_steps >= tc.warmup_steps and len(self.buffer) >= self.cfg.agent.batch_size:
                         for _ in range(tc.updates_per_rollout):
+                            if self._halt():
+                                break
                             self._update()
-                    self._periodic(t0, steps0)
+                    if self._halt():
+                        break
+                    self._periodic(t0, steps0, stop_at)
                     if progress is not None:
-                        live = " ".join(f"{k}={self.last_metrics[k]:.3g}" for k in LIVE_KEYS if k in self.last_metrics)
-                        progress.update(task, completed=self.env_steps, description=f"upd {self.updates} {live}")
-            path = self.save()
+                        progress.update(task, completed=self.env_steps, metrics=self._metric_text())
+            # a run that did nothing (a resume already at its step count) leaves its checkpoint as it is
+            path = self.save() if self.env_steps != self._saved_at else self._checkpoint_path()
         finally:
             for sig, h in handlers.items():
                 signal.signal(sig, h)
@@ -155,6 +174,10 @@ class Trainer:
                 self._writer.flush()
         return {"env_steps": self.env_steps, "updates": self.updates, "checkpoint": str(path),
                 "interrupted": self._stop, "seconds": time.perf_counter() - t0, **self.last_metrics}
+
+    def _halt(self) -> bool:
+        """Stop at the next safe point: a stop signal came, or the run's deadline passed."""
+        return self._stop or time.monotonic() >= self._deadline
 
     def _env_step(self) -> None:
         tc, agent, env = self.cfg.train, self.agent, self.bundle.env
@@ -188,7 +211,7 @@ class Trainer:
         self.updates += 1
 
     # --------------------------------------------------------------------------------- periodic work
-    def _periodic(self, t0: float, steps0: int) -> None:
+    def _periodic(self, t0: float, steps0: int, stop_at: int) -> None:
         tc = self.cfg.train
         extra: dict[str, float] = {}
         if self.env_steps >= self.next_priority or self.env_steps >= self.next_eval:
@@ -203,6 +226,8 @@ class Trainer:
                    "env_steps_per_s": fps, **self.last_metrics, **self._take_action_stats(), **extra}
             self._log(row)
             self._warn(row)
+            if not self.progress_enabled:
+                self._log_line(stop_at, fps)
             while self.next_log <= self.env_steps:
                 self.next_log += tc.log_every
         if self.env_steps >= self.next_ckpt:
@@ -215,7 +240,9 @@ class Trainer:
         tc = self.cfg.train
         rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
         scores = tracking_scores(self.agent.model, self.bundle, self.cfg.agent.seq_length, tc.priority_max_clips,
-                                 self.cfg.env.max_episode_steps, rng)
+                                 self.cfg.env.max_episode_steps, rng, stop=self._halt)
+        if scores is None:  # stopped mid-episode: no partial scores, priorities untouched
+            return {}
         for name, (e, _) in scores.items():
             self.emd[name] = e
         out = {"eval/tracking_emd": float(np.mean([e for e, _ in scores.values()])),
@@ -282,19 +309,51 @@ class Trainer:
             "buffer": {"size": len(self.buffer), "pos": self.buffer.pos},
             "env_rng": self.bundle.env.np_random.bit_generator.state,
         })
-        reward = self.buffer.reward_inference_sample(tc.reward_buffer_size, np.random.default_rng(self.env_steps)) \
-            if len(self.buffer) and tc.reward_buffer_size else None
+        reward, meta["reward_represents"] = self._reward_sample()
         replay = self.buffer.state() if tc.save_buffer else None
         save_checkpoint(path, self.agent.model, self.cfg, trainer_state=(tensors, meta), reward_buffer=reward,
                         replay_buffer=replay)
         tmp = root / ".latest.tmp"
         tmp.write_text(path.name)
         os.replace(tmp, root / "latest")
-        old = sorted(p for p in root.glob("step_*") if p.is_dir())[: -tc.keep_checkpoints]
-        for p in old:
+        self._saved_at = self.env_steps
+        for p in prunable_checkpoints(root, tc.keep_checkpoints, tc.keep_every):
             if p != path:
                 shutil.rmtree(p, ignore_errors=True)
         return path
+
+    def _checkpoint_path(self) -> Path:
+        return self.out / "checkpoints" / f"step_{self.env_steps:010d}"
+
+    def _reward_sample(self) -> tuple[dict[str, np.ndarray] | None, int]:
+        """The checkpoint's reward-inference sample and how many transitions it stands for.
+
+        After a resume without the replay buffer, the sample carried over from the checkpoint is merged with the
+        new transitions in proportion to what each stands for (as a FIFO buffer would hold them), so a resume
+        never leaves reward prompts with less data than the run had."""
+        n_max, rng = self.cfg.train.reward_buffer_size, np.random.default_rng(self.env_steps)
+        new_n = len(self.buffer)
+        if self._carried is None:
+            fresh = self.buffer.reward_inference_sample(n_max, rng) if new_n and n_max else None
+            return fresh, new_n
+        carried_n = len(self._carried["next_obs"])
+        old_n = max(0, min(self._carried_weight, self.cfg.train.buffer_capacity - new_n))  # pushed out by new data
+        old_avail = round(carried_n * old_n / self._carried_weight) if self._carried_weight else 0
+        n = min(n_max, old_avail + new_n)
+        k_new = min(new_n, n - min(old_avail, round(n * old_n / max(old_n + new_n, 1))))
+        k_old = min(old_avail, n - k_new)
+        old = {k: v[np.sort(rng.choice(carried_n, k_old, replace=False))] for k, v in self._carried.items()}
+        if k_new:
+            fresh = self.buffer.reward_inference_sample(k_new, rng)
+            old = {k: np.concatenate([old[k], fresh[k]]) for k in old}
+        return (old if k_old + k_new else None), old_n + new_n
+
+    def close(self) -> None:
+        """Remove the memory-mapped replay buffer: scratch space (a resume reads the checkpoint, never this), and
+        a file as large as the whole buffer."""
+        if self.buffer.memmap_dir is not None:
+            self.buffer.data.clear()
+            shutil.rmtree(self.buffer.memmap_dir, ignore_errors=True)
 
     def _env_state(self) -> tuple[np.ndarray, np.ndarray]:
         env = self.bundle.env
@@ -346,35 +405,99 @@ class Trainer:
             _episode_counter(self.bundle.env)[:] = tensors["env_episode_steps"].numpy()
         except KeyError as e:
             raise CheckpointError(f"{ckpt.path}/trainer_state.safetensors: missing entry {e}") from None
+        self._saved_at = self.env_steps
         replay = ckpt.replay_buffer()
         if replay is not None:
             self.buffer.load_state(*replay)
-        elif self.cfg.train.save_buffer:
+            return
+        if self.cfg.train.save_buffer:
             raise CheckpointError(f"{ckpt.path}: train.save_buffer is set but the checkpoint has no replay buffer")
+        self._carried = ckpt.reward_buffer()
+        if self._carried is None:
+            lost = "it has no reward-inference sample either: reward prompts will only see the new transitions"
+        else:
+            self._carried_weight = int(meta.get("reward_represents", meta["buffer"]["size"]))
+            lost = (f"its reward-inference sample ({len(self._carried['next_obs']):,} states) is carried over and "
+                    "merged with the new transitions")
+        self._notice(f"resume: {ckpt.path} has no replay buffer (train.save_buffer: false), so training continues "
+                     f"from an empty buffer; {lost}. Set train.save_buffer: true for an exact resume.")
 
     # --------------------------------------------------------------------------------- plumbing
     def _install_signals(self) -> dict[int, Any]:
+        """SIGINT, SIGTERM and SIGHUP (the terminal went away) stop at the next safe point, within one env step,
+        update or tracking step, with a final checkpoint; a second one aborts at once (KeyboardInterrupt), the
+        last checkpoint on disk staying intact (checkpoints are written atomically)."""
         def stop(signum: int, frame: Any) -> None:
+            if self._stop:
+                raise KeyboardInterrupt
             self._stop = True
+            try:  # straight to the fd: safe inside a signal handler, and fine if the terminal is gone
+                os.write(2, "\nstopping… writing a final checkpoint (signal again to abort at once)\n".encode())
+            except OSError:
+                pass
 
         old = {}
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in STOP_SIGNALS:
             try:
                 old[sig] = signal.signal(sig, stop)
             except ValueError:  # not the main thread
                 pass
         return old
 
+    def _notice(self, message: str) -> None:
+        """A yellow line on stderr that is also kept in the run's warnings.txt."""
+        Console(stderr=True).print(f"[yellow]{message}[/]", highlight=False)
+        with open(self.out / "warnings.txt", "a") as f:
+            f.write(f"{self.env_steps}\tnotice\t{message}\n")
+
+    def _metric_text(self) -> str:
+        """Compact live metrics for the progress bar, e.g. `u 1,200 fb 3.1 act -12 crit 0.4`."""
+        short = {"fb_loss": "fb", "actor_loss": "act", "critic_loss": "crit", "disc_loss": "disc", "reward": "r"}
+        parts = [f"{short[k]} {self.last_metrics[k]:.2g}" for k in LIVE_KEYS if k in self.last_metrics]
+        return " ".join([f"u {self.updates:,}", *parts])
+
+    def _log_line(self, total: int, rate: float) -> None:
+        """One plain progress line (for logs and CI, where the live bar is off)."""
+        left = int((total - self.env_steps) / rate) if rate > 0 else None
+        eta = "?" if left is None else f"{left // 3600}:{left % 3600 // 60:02d}:{left % 60:02d}"
+        print(f"{self.env_steps:,}/{total:,} steps ({100 * self.env_steps / total:.1f}%) {rate:,.0f} steps/s "
+              f"eta {eta} | {self._metric_text()}", flush=True)
+
     @contextmanager
     def _progress(self, total: int) -> Iterator[tuple[Progress | None, Any]]:
-        """A rich progress bar over env steps (or nothing when disabled)."""
+        """A rich progress bar over env steps on stderr (or nothing when disabled)."""
         if not self.progress_enabled:
             yield None, None
             return
-        cols = [TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,} steps"),
-                TimeElapsedColumn(), TimeRemainingColumn()]
-        with Progress(*cols, transient=False) as progress:
-            yield progress, progress.add_task("training", total=total, completed=self.env_steps)
+        with Progress(*progress_columns(), console=Console(stderr=True), transient=False, expand=True) as progress:
+            yield progress, progress.add_task("training", total=total, completed=self.env_steps,
+                                              metrics=self._metric_text())
+
+
+def progress_columns() -> list[ProgressColumn]:
+    """Training bar columns: steps, rate, elapsed and ETA keep their width; the metrics (a `metrics` task field)
+    take what is left and are cut first, so the bar stays readable at 80 columns."""
+    def fixed() -> Column:
+        return Column(no_wrap=True)
+
+    return [BarColumn(bar_width=10), TextColumn("{task.completed:,}/{task.total:,}", table_column=fixed()),
+            _RateColumn(table_column=fixed()), TimeElapsedColumn(table_column=fixed()),
+            TextColumn("eta", table_column=fixed()), TimeRemainingColumn(table_column=fixed()),
+            TextColumn("{task.fields[metrics]}", table_column=Column(no_wrap=True, overflow="ellipsis", ratio=1))]
+
+
+class _RateColumn(ProgressColumn):
+    """Env steps per second."""
+
+    def render(self, task: Task) -> Text:
+        return Text(f"{task.speed:,.0f}/s" if task.speed else "-/s")
+
+
+def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Path]:
+    """Checkpoints that retention removes: all but the last `keep_last`, sparing those at multiples of
+    `keep_every` env steps (0: none spared)."""
+    steps = sorted(p for p in root.glob("step_*") if p.is_dir())[:-keep_last]
+    return [p for p in steps if not (keep_every and int(p.name.split("_")[1]) % keep_every == 0)]
 
 
 def _episode_counter(env: Any) -> np.ndarray:
@@ -402,6 +525,21 @@ def train(cfg: Config, out_dir: str | Path, resume: bool = False, progress: bool
           init_from: str | Path | None = None) -> dict[str, Any]:
     """Build a Trainer and run it to the end (or until interrupted); `init_from` warm-starts a new run."""
     trainer = Trainer(cfg, out_dir, resume=resume, progress=progress, init_from=init_from)
-    summary = trainer.run()
+    try:
+        summary = trainer.run()
+    finally:
+        trainer.close()
     (Path(out_dir) / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
+
+
+def checkpoint_env_steps(run_dir: str | Path) -> int:
+    """Env steps of a run directory's latest checkpoint (read from its trainer-state header only)."""
+    root = Path(run_dir) / "checkpoints"
+    if not (root / "latest").is_file():
+        raise CheckpointError(f"{run_dir}: no checkpoint to resume (no checkpoints/latest)")
+    path = root / (root / "latest").read_text().strip()
+    try:
+        return int(read_trainer_meta(path)["env_steps"])
+    except KeyError:
+        raise CheckpointError(f"{path}: trainer state without env_steps") from None

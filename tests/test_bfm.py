@@ -254,3 +254,13 @@ def test_legacy_checkpoint_without_action_mapping_means_mid(ckpt, tmp_path):
     manifest["files"]["config.yaml"] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
     (old / "manifest.json").write_text(json.dumps(manifest))
     assert BFM.load(old).action_mapping == "mid" and BFM.load(ckpt).action_mapping == "rest"
+
+
+def test_a_missing_local_path_is_not_looked_up_on_the_hub(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    (tmp_path / "runs").mkdir()
+    for spec in ("runs/small", "./small", "old.runs/small"):
+        with pytest.raises(CheckpointError, match="no such checkpoint directory") as err:
+            BFM.load(spec, cache_dir=tmp_path / "hf")
+        assert "Hugging Face" not in str(err.value), spec

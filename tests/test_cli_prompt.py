@@ -104,6 +104,7 @@ def test_timeline_runs_every_segment(ckpt, clip_path, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["prompt", "{ckpt}", "--reward", "fly-to-moon"], "unknown reward task 'fly-to-moon'"),
     (["prompt", "{ckpt}", "--goal", "t_pose", "--reward", "jump-2"], "exactly one of"),
+    (["prompt", "{ckpt}", "--goal", "t_pose", "--method", "regression"], "applies to --reward only"),
     (["prompt", "{missing}", "--goal", "t_pose"], "no such checkpoint directory"),
     (["track", "{ckpt}", "{missing}.npz"], "motion clip not found"),
     (["timeline", "{ckpt}", "jump-2:abc"], "not a number"),

@@ -130,6 +130,8 @@ def test_cli_eval_command(tmp_path):
     assert "move-ego-0-0" in res.output and (out / "results.json").exists()
     bad = runner.invoke(app, ["eval", "random", "--tasks", "fly-away", "--out", str(tmp_path / "x")])
     assert bad.exit_code == 1 and "neither a goal pose" in bad.output and "Traceback" not in bad.output
+    unused = runner.invoke(app, ["eval", "zero", "--suite", "tracking", "--episodes", "3", "--out", str(tmp_path / "y")])
+    assert unused.exit_code == 1 and "--episodes: reward and goal episodes only" in unused.output
     assert make_agent("random").name == "random"
 
 
@@ -167,3 +169,55 @@ def test_upright_measures_separate_holding_still_from_random_actions():
     zero, rand = upright(ZeroAgent(), episodes=2, steps=45), upright(RandomAgent(0), episodes=2, steps=45)
     assert zero.median_seconds == pytest.approx(1.5)           # the rest pose holds for the whole 1.5 s
     assert rand.median_seconds < 1.2 and not rand.got_up.any()  # random PD targets fall within about a second
+
+
+class Unpromptable(PoseOracle):
+    """Cannot be prompted for one reward task (as a checkpoint whose buffer that reward is zero on), and is
+    interrupted (Ctrl-C) when asked for `stop_at` goal."""
+
+    def __init__(self, stop_at=None):
+        super().__init__()
+        self.stop_at = stop_at
+
+    def reward_z(self, reward):
+        from fbcpr.prompt import PromptError
+
+        if reward == "jump-2":
+            raise PromptError("reward 'jump-2' is zero on all 1024 buffer samples")
+        return super().reward_z(reward)
+
+    def goal_z(self, goal):
+        if self.stop_at is not None and np.allclose(goal_obs(self.stop_at), goal):
+            raise KeyboardInterrupt
+        return super().goal_z(goal)
+
+
+def test_a_task_that_cannot_be_prompted_is_skipped_and_results_are_written_as_they_come(tmp_path, library):
+    from rich.console import Console
+
+    from fbcpr.evaluation.report import print_report
+
+    out = tmp_path / "ev"
+    res = evaluate(Unpromptable(), "all", tasks=["jump-2", "move-ego-0-0", "t_pose"], episodes=1, steps=3,
+                   motions=library, out=out, show_progress=False)
+    assert list(res["reward"]) == ["move-ego-0-0"] and "t_pose" in res["goal"]
+    assert res["skipped"] == {"reward/jump-2": "reward 'jump-2' is zero on all 1024 buffer samples"}
+    saved = json.loads((out / "results.json").read_text())
+    assert saved["complete"] and saved["skipped"] == res["skipped"]
+    con = Console(width=100, record=True)
+    print_report(res, con)
+    assert "skipped 1 (reward/jump-2): reward 'jump-2' is zero" in con.export_text()
+    with pytest.raises(KeyboardInterrupt):
+        evaluate(Unpromptable(stop_at="t_pose"), "goal", tasks=["a_pose", "t_pose"], episodes=1, steps=3,
+                 motions=library, out=tmp_path / "partial", show_progress=False)
+    partial = json.loads((tmp_path / "partial" / "results.json").read_text())
+    assert not partial["complete"] and list(partial["goal"]) == ["a_pose"]
+
+
+def test_eval_says_what_it_will_simulate(library):
+    from fbcpr.evaluation.runner import plan
+
+    chosen = {"reward": ["a", "b"], "goal": ["t_pose"], "tracking": ["stand"]}
+    text = plan(chosen, ("reward", "goal", "tracking"), 10, 300, library)
+    assert text == ("evaluating 2 reward tasks x 10 episodes x 300 steps, 1 goal poses x 10 episodes x 300 steps, "
+                    "1 clips to track: 9,029 env steps")

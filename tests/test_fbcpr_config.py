@@ -68,3 +68,32 @@ def test_bad_yaml_file(tmp_path):
         load_config(p)
     with pytest.raises(ConfigError, match="not found"):
         load_config(tmp_path / "missing.yaml")
+
+
+def test_invalid_yaml_names_line_and_column(tmp_path):
+    p = tmp_path / "bad.yaml"
+    p.write_text("model:\n  z_dim: 8\nagent:\n  batch_size: [1, 2\n")
+    with pytest.raises(ConfigError, match=rf"{p.name}:\d+:\d+: invalid YAML") as err:
+        load_config(p)
+    assert "\n" not in str(err.value)
+
+
+def test_relative_paths_are_read_from_the_config_folder(tmp_path, monkeypatch):
+    (tmp_path / "proj" / "configs").mkdir(parents=True)
+    p = tmp_path / "proj" / "configs" / "mine.yaml"
+    p.write_text("env:\n  motions: ../data/clips\n")
+    monkeypatch.chdir(tmp_path)
+    assert load_config(p).env.motions == str(tmp_path / "proj" / "data" / "clips")
+    p.write_text("env:\n  motions: synthetic\n")
+    assert load_config(p).env.motions == "synthetic"
+
+
+def test_shipped_configs_are_found_by_name(tmp_path, monkeypatch):
+    from fbcpr.config import find_config
+
+    monkeypatch.chdir(tmp_path)
+    assert find_config("small").name == "small.yaml" and find_config("toy.yaml").is_file()
+    with pytest.raises(ConfigError, match="did you mean 'small'"):
+        find_config("smal")
+    (tmp_path / "small").mkdir()           # a local folder of that name is not a config; the shipped one is
+    assert find_config("small").parent.name == "configs"

@@ -150,3 +150,164 @@ def test_failure_signatures_are_logged_once(tmp_path):
     tr._warn({"disc_expert": 0.6, "disc_online": 0.4, "action_saturated": 0.1})
     assert len((tmp_path / "run" / "warnings.txt").read_text().splitlines()) == 2
     assert tr._take_action_stats() == {}
+
+
+# ------------------------------------------------------------------------ issue 15: resume, signals, progress
+
+
+def tree(root):
+    """{relative path: (size, mtime_ns)} of every file under root: what a no-op must leave untouched."""
+    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file()}
+
+
+def test_resume_without_replay_buffer_keeps_the_reward_sample(tmp_path, capsys):
+    cfg = dict(save_buffer=False, reward_buffer_size=300)
+    first = Trainer(tiny_cfg(**cfg), tmp_path, progress=False).run(max_env_steps=160)
+    before = load_checkpoint(first["checkpoint"]).reward_buffer()
+    assert len(before["next_obs"]) == 160
+    tr = Trainer(tiny_cfg(**cfg), tmp_path, resume=True, progress=False)
+    assert "no replay buffer" in capsys.readouterr().err  # said at resume, loudly
+    after = load_checkpoint(tr.run(max_env_steps=40)["checkpoint"]).reward_buffer()
+    assert len(after["next_obs"]) == 200                   # 160 carried + 40 new, not just the 40 new
+    carried = {r.tobytes() for r in before["next_obs"]}
+    assert sum(r.tobytes() in carried for r in after["next_obs"]) == 160
+    again = Trainer(tiny_cfg(**cfg), tmp_path, resume=True, progress=False)  # and once more: it keeps adding up
+    assert len(load_checkpoint(again.run(max_env_steps=200)["checkpoint"]).reward_buffer()["next_obs"]) == 300
+
+
+def test_noop_resume_changes_nothing_on_disk_and_more_steps_continue(tmp_path):
+    from fbcpr.cli.app import app
+
+    cfg_path = tmp_path / "tiny.yaml"
+    cfg_path.write_text(dump_config(tiny_cfg(total_env_steps=80, save_buffer=False)))
+    run = tmp_path / "run"
+    runner = CliRunner()
+    assert runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--no-progress"]).exit_code == 0
+    snapshot = tree(run)
+    res = runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--resume", "--steps", "40", "--no-progress"])
+    assert res.exit_code == 0 and "nothing to do" in res.output, res.output
+    assert tree(run) == snapshot
+    res = runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--resume", "--more-steps", "40",
+                              "--no-progress"])
+    assert res.exit_code == 0 and "finished at 120 env steps" in res.output, res.output
+    res = runner.invoke(app, ["train", str(cfg_path), "--out", str(tmp_path / "new"), "--more-steps", "40"])
+    assert res.exit_code != 0 and "--resume" in res.output
+    # the API side: a run with nothing to do does not rewrite its checkpoint
+    ckpt = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()
+    mtime = (ckpt / "manifest.json").stat().st_mtime_ns
+    tr = Trainer(tiny_cfg(total_env_steps=80, save_buffer=False), run, resume=True, progress=False)
+    assert tr.run()["env_steps"] == 120 and (ckpt / "manifest.json").stat().st_mtime_ns == mtime
+
+
+def test_sighup_stops_like_sigint(tmp_path):
+    tr = Trainer(tiny_cfg(), tmp_path, progress=False)
+    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGHUP))
+    timer.start()
+    summary = tr.run()
+    timer.join()
+    assert summary["interrupted"] and load_checkpoint(summary["checkpoint"]).trainer_state()[1]["env_steps"] > 0
+
+
+def test_first_signal_says_stopping_second_aborts(tmp_path, capfd):
+    tr = Trainer(tiny_cfg(), tmp_path, progress=False)
+    old = tr._install_signals()
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        assert tr._stop and "stopping" in capfd.readouterr().err
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def test_stop_interrupts_the_tracking_pass_within_a_step(tmp_path):
+    tr = Trainer(tiny_cfg(), tmp_path, progress=False)
+    steps = []
+    make = tr.bundle.make_eval_env
+
+    def counting(n, horizon):
+        env = make(n, horizon)
+        step = env.step
+
+        def counted(action):
+            steps.append(1)
+            if len(steps) == 3:
+                tr._stop = True           # a Ctrl-C arrives during the tracking rollout
+            return step(action)
+        env.step = counted
+        return env
+
+    tr.bundle.make_eval_env = counting
+    priorities = np.array(tr.bundle.library.priorities, copy=True)
+    assert tr.evaluate(refresh_priorities=True) == {}
+    assert len(steps) == 3                  # not the whole 30-step episode
+    np.testing.assert_array_equal(tr.bundle.library.priorities, priorities)
+
+
+def test_progress_bar_keeps_steps_rate_and_eta_at_80_columns():
+    import io
+
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from fbcpr.trainer import progress_columns
+
+    con = Console(width=80, file=io.StringIO())
+    bar = Progress(*progress_columns(), console=con, expand=True)
+    bar.add_task("training", total=1_000_000, completed=12_345,
+                 metrics="u 1,234 fb 3.1 act -12 crit 0.41 disc 1.3 r 0.02 " * 3)
+    con.print(bar.get_renderable())
+    lines = con.file.getvalue().splitlines()
+    assert len(lines) == 1 and len(lines[0]) <= 80
+    assert "12,345/1,000,000" in lines[0] and "/s" in lines[0] and "eta -:--:--" in lines[0]
+
+
+def test_no_progress_prints_plain_log_lines(tmp_path, capsys):
+    Trainer(tiny_cfg(log_every=40), tmp_path, progress=False).run(max_env_steps=120)
+    lines = [line for line in capsys.readouterr().out.splitlines() if "steps/s" in line]
+    assert len(lines) >= 2 and lines[-1].startswith("120/120 steps (100.0%)") and "eta" in lines[-1]
+
+
+def test_cuda_without_cuda_leaves_no_run_directory(tmp_path):
+    from fbcpr.cli.app import app
+
+    if torch.cuda.is_available():
+        pytest.skip("CUDA is available here")
+    cfg_path = tmp_path / "tiny.yaml"
+    cfg_path.write_text(dump_config(tiny_cfg(total_env_steps=60)))
+    res = CliRunner().invoke(app, ["train", str(cfg_path), "--out", str(tmp_path / "run"), "--device", "cuda"])
+    assert res.exit_code == 1 and "CUDA" in res.output
+    assert not (tmp_path / "run").exists()
+    with pytest.raises(Exception, match="CUDA"):
+        Trainer(tiny_cfg(device="cuda"), tmp_path / "run2", progress=False)
+    assert not (tmp_path / "run2").exists()
+
+
+def test_retention_keeps_the_last_k_and_every_nth(tmp_path):
+    from fbcpr.trainer import prunable_checkpoints
+
+    for step in range(0, 1000, 100):
+        (tmp_path / f"step_{step:010d}").mkdir()
+    names = [p.name for p in prunable_checkpoints(tmp_path, keep_last=3, keep_every=500)]
+    assert names == [f"step_{s:010d}" for s in (100, 200, 300, 400, 600)]
+    assert len(prunable_checkpoints(tmp_path, keep_last=3, keep_every=0)) == 7
+
+
+def test_memmapped_buffer_is_removed_when_training_ends(tmp_path):
+    from fbcpr.trainer import train
+
+    train(tiny_cfg(total_env_steps=60, buffer_memmap_mb=0.0), tmp_path, progress=False)
+    assert not (tmp_path / "buffer_mmap").exists() and (tmp_path / "checkpoints" / "latest").exists()
+
+
+def test_a_deadline_is_kept_to_within_a_step(tmp_path):
+    import time
+
+    tr = Trainer(tiny_cfg(), tmp_path, progress=False)
+    tr.run(max_env_steps=60)                      # imports and first-call costs out of the way
+    t0 = time.monotonic()
+    summary = tr.run(deadline=t0 + 1.0)
+    took = time.monotonic() - t0
+    assert not summary["interrupted"] and summary["env_steps"] > 60
+    assert took < 1.0 * 1.15 + 0.3, took           # the budget plus the final checkpoint, not whole chunks

@@ -126,3 +126,43 @@ def test_parse_counts_channels():
     joints, values, frame_time = parse_bvh(text)
     assert len([j for j in joints if not j.end_site]) == len(SKELETON)
     assert values.shape == (3, 6 + 3 * (len(SKELETON) - 1)) and frame_time == pytest.approx(1 / 60)
+
+
+def _renamed(tmp_path, names: dict[str, str], name: str = "rig.bvh"):
+    text, _ = _squat_bvh(n=6)
+    for old, new in names.items():
+        text = text.replace(f"JOINT {old}\n", f"JOINT {new}\n").replace(f"ROOT {old}\n", f"ROOT {new}\n")
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+MAKEHUMAN = {"Hips": "hip", "Spine": "abdomen", "Spine1": "chest", "LeftUpLeg": "lhip", "LeftLeg": "lknee",
+             "LeftFoot": "lfoot", "LeftToeBase": "toe1-1.L", "RightUpLeg": "rhip", "RightLeg": "rknee",
+             "RightFoot": "rfoot", "RightToeBase": "toe1-1.R", "LeftArm": "lshldr", "RightArm": "rshldr",
+             "LeftForeArm": "lforearm", "RightForeArm": "rforearm", "LeftHand": "lhand", "RightHand": "rhand"}
+
+
+def test_makehuman_rig_names_are_known(tmp_path):
+    src = load_bvh(_renamed(tmp_path, MAKEHUMAN))
+    cmu = load_bvh(_renamed(tmp_path, {}, "cmu.bvh"))
+    for key in ("l_toe", "r_toe", "l_knee", "r_wrist"):
+        np.testing.assert_allclose(src.positions[key], cmu.positions[key])
+
+
+def test_an_unknown_toe_name_falls_back_to_what_hangs_below_the_foot(tmp_path):
+    src = load_bvh(_renamed(tmp_path, {"LeftToeBase": "ball_l", "RightToeBase": "ball_r"}))
+    cmu = load_bvh(_renamed(tmp_path, {}, "cmu.bvh"))
+    np.testing.assert_allclose(src.positions["l_toe"], cmu.positions["l_toe"])
+
+
+def test_a_joint_map_names_the_joints_of_any_rig(tmp_path):
+    path = _renamed(tmp_path, {"LeftHand": "wrist_a", "RightHand": "wrist_b"})
+    with pytest.raises(BvhFormatError, match="no joint for l_wrist .*--joint-map"):
+        load_bvh(path)
+    src = load_bvh(path, joint_map={"l_wrist": "wrist_a", "r_wrist": "wrist_b"})
+    np.testing.assert_allclose(src.positions["l_wrist"], load_bvh(_renamed(tmp_path, {}, "c.bvh")).positions["l_wrist"])
+    with pytest.raises(BvhFormatError, match="no joint named 'nope' for l_wrist"):
+        load_bvh(path, joint_map={"l_wrist": "nope"})
+    with pytest.raises(BvhFormatError, match="unknown keypoint 'l_hand'"):
+        load_bvh(path, joint_map={"l_hand": "wrist_a"})

@@ -47,7 +47,7 @@ def test_import_reports_failures_and_keeps_earlier_outputs(tmp_path, monkeypatch
     res = runner.invoke(app, ["motions", "import", str(tmp_path / "bad"), "--out", str(out)])
     assert res.exit_code == 1
     summary = json.loads((out / "import_summary.json").read_text())
-    assert summary["clips"] == []
+    assert [c["clip"] for c in summary["clips"]] == ["squat.npz"]  # merged: the first import's clip stays listed
     reasons = {Path(f["file"]).name: f["reason"] for f in summary["failures"]}
     assert set(reasons) == set(expected)
     for name, word in expected.items():
@@ -62,7 +62,29 @@ def test_import_reports_failures_and_keeps_earlier_outputs(tmp_path, monkeypatch
     res = runner.invoke(app, ["motions", "import", str(tmp_path / "mixed"), "--out", str(out)])
     assert res.exit_code == 1 and (out / "again.npz").is_file()
     summary = json.loads((out / "import_summary.json").read_text())
-    assert [c["clip"] for c in summary["clips"]] == ["again.npz"] and len(summary["failures"]) == 1
+    assert [c["clip"] for c in summary["clips"]] == ["squat.npz", "again.npz"] and len(summary["failures"]) == 7
+    assert summary["total_seconds"] == round(sum(c["seconds"] for c in summary["clips"]), 3)
+
+
+def test_import_names_the_clipped_joints(tmp_path, monkeypatch):
+    monkeypatch.setenv("FBCPR_CACHE_DIR", str(tmp_path / "cache"))
+    text, _ = _squat_bvh(n=20)
+    (tmp_path / "squat.bvh").write_text(text)
+    from motions.retarget import RetargetReport
+
+    real = RetargetReport.__init__
+
+    def with_clipping(self, *args, **kwargs):  # a source beyond the joint limits, as real mocap often is
+        real(self, *args, **kwargs)
+        self.clipped = {"L_Knee_y": 8, "R_Elbow_x": 4}
+
+    monkeypatch.setattr(RetargetReport, "__init__", with_clipping)
+    res = runner.invoke(app, ["motions", "import", str(tmp_path / "squat.bvh"), "--out", str(tmp_path / "out"),
+                              "--no-cache"], env={"COLUMNS": "200"})
+    assert res.exit_code == 0, res.output
+    assert "12: L_Knee_y 8, R_Elbow_x 4" in res.output
+    summary = json.loads((tmp_path / "out" / "import_summary.json").read_text())
+    assert summary["clips"][0]["clipped_joints"] == {"L_Knee_y": 8, "R_Elbow_x": 4}
 
 
 def test_info_lists_clips_and_flags_invalid_ones(tmp_path, monkeypatch):
@@ -97,3 +119,20 @@ def test_render_writes_frames_or_says_why_not(tmp_path, monkeypatch):
         assert res.exit_code == 1 and "no OpenGL renderer available" in res.output
     res = runner.invoke(app, ["motions", "render", str(tmp_path / "missing.npz"), str(out)])
     assert res.exit_code == 1 and "no such clip file" in res.output
+
+
+def test_import_with_a_joint_map(tmp_path, monkeypatch):
+    monkeypatch.setenv("FBCPR_CACHE_DIR", str(tmp_path / "cache"))
+    text, _ = _squat_bvh(n=20)
+    (tmp_path / "odd.bvh").write_text(text.replace("JOINT LeftHand\n", "JOINT wrist_a\n"))
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["motions", "import", str(tmp_path / "odd.bvh"), "--out", str(out)], env={"COLUMNS": "300"})
+    assert res.exit_code == 1 and "no joint for l_wrist" in res.output
+    (tmp_path / "map.yaml").write_text("l_wrist: wrist_a\n")
+    res = runner.invoke(app, ["motions", "import", str(tmp_path / "odd.bvh"), "--out", str(out),
+                              "--joint-map", str(tmp_path / "map.yaml")], env={"COLUMNS": "300"})
+    assert res.exit_code == 0 and (out / "odd.npz").is_file(), res.output
+    (tmp_path / "bad.yaml").write_text("l_wrist: [wrist_a\n")
+    res = runner.invoke(app, ["motions", "import", str(tmp_path / "odd.bvh"), "--out", str(out),
+                              "--joint-map", str(tmp_path / "bad.yaml")], env={"COLUMNS": "300"})
+    assert res.exit_code == 1 and "bad.yaml:2:1: invalid YAML" in res.output

@@ -255,3 +255,25 @@ def test_prompts_steer_a_trained_toy_model(tmp_path):
         track_err.append(np.linalg.norm(tracked - ref[1:], axis=1).mean())
         imitate_err.append(np.linalg.norm(imitated - ref[1:], axis=1).mean())
     assert np.mean(track_err) < 0.7 * np.mean(imitate_err)
+
+
+def test_unknown_names_suggest_the_closest_and_do_not_repeat_themselves():
+    from fbcpr.prompt import PromptError, _reward_fn, goal_observation
+
+    with pytest.raises(PromptError) as err:
+        _reward_fn("jupm-2")
+    assert "did you mean 'jump-2'?" in str(err.value) and str(err.value).count("jupm-2") == 1
+    with pytest.raises(PromptError, match=r"unknown goal 't-pose' \(did you mean 't_pose'\?\)"):
+        goal_observation("t-pose", 358)
+
+
+def test_a_folder_given_as_a_clip_lists_its_clips(tmp_path):
+    from fbcpr.prompt import PromptError, load_motion
+    from motions.clip import save_clip
+    from motions.synthetic import stand
+
+    with pytest.raises(PromptError, match="is a directory, not a clip; it holds no clip"):
+        load_motion(tmp_path)
+    save_clip(stand(seconds=0.5), tmp_path / "stand.npz")
+    with pytest.raises(PromptError, match=r"is a directory, not a clip; pick one of its 1 clips: stand.npz"):
+        load_motion(tmp_path)

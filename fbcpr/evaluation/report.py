@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 
@@ -79,6 +80,11 @@ def print_report(results: dict[str, Any], console: Console | None = None) -> Non
         s = results["summary"]["tracking"]
         table.add_row("all", "", f"{s['success']:.2f}", f"{s['emd']:.3f}")
         con.print(table)
+    by_reason: dict[str, list[str]] = {}
+    for name, reason in results.get("skipped", {}).items():
+        by_reason.setdefault(reason, []).append(name)
+    for reason, names in by_reason.items():
+        con.print(f"[yellow]skipped {len(names)}[/] ({', '.join(names)}): {escape(reason)}", highlight=False)
 
 
 def _bars(path: Path, labels: list[str], values: list[float], ylabel: str, title: str,

@@ -12,13 +12,18 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from fbcpr.checkpoint import CheckpointError
 from fbcpr.evaluation.agents import Agent, action_mapping
+from fbcpr.prompt import PromptError
 from fbcpr.evaluation.metrics import d_smpl, emd, goal_proximity, goal_success, tracking_success
 from humanoid_env.observation import OBS_DIM
 
 SUITES = ("reward", "goal", "tracking")
+#: What a prompt raises when a task cannot be asked of this agent (e.g. a reward that is zero on its whole buffer):
+#: the task is skipped with the reason, the rest of the suite runs.
+PROMPT_ERRORS: tuple[type[Exception], ...] = (PromptError, CheckpointError)
 EPISODE_STEPS = 300
 TEST_FALL_PROB = 0.5  # the paper mixes Fall and MoCap test states without giving the ratio; we use half-half
 
@@ -56,6 +61,36 @@ class _Rollouts:
         self.env.close()
 
 
+class Report:
+    """Where results go as each task finishes: a task that cannot be prompted is skipped with its reason, and
+    with an `out` folder results.json is rewritten after every task, so an interrupted run keeps what is done."""
+
+    def __init__(self, results: dict[str, Any] | None = None, out: Path | None = None) -> None:
+        self.results = results if results is not None else {}
+        self.out = out
+
+    def result(self, suite: str, name: str, entry: dict[str, Any]) -> None:
+        self.results.setdefault(suite, {})[name] = entry
+        self._flush()
+
+    def skip(self, suite: str, name: str, reason: str) -> None:
+        self.results.setdefault("skipped", {})[f"{suite}/{name}"] = reason
+        self._flush()
+
+    def _flush(self) -> None:
+        if self.out is not None:
+            write_json(self.results, self.out)
+
+
+def _prompt(report: Report, suite: str, name: str, make_z: Callable[[], np.ndarray]) -> np.ndarray | None:
+    """The task's z, or None after recording why it cannot be prompted."""
+    try:
+        return make_z()
+    except PROMPT_ERRORS as err:
+        report.skip(suite, name, str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__)
+        return None
+
+
 def _initial_states(episodes: int, fall_prob: float, motions: Any, seed: int) -> tuple[np.ndarray, np.ndarray]:
     from humanoid_env.inits import make_init
 
@@ -63,8 +98,10 @@ def _initial_states(episodes: int, fall_prob: float, motions: Any, seed: int) ->
 
 
 def reward_suite(agent: Agent, tasks: Sequence[str], episodes: int, init: tuple[np.ndarray, np.ndarray],
-                 progress: Progress, steps: int = EPISODE_STEPS, num_threads: int | None = None) -> dict[str, Any]:
-    """Mean and std of the undiscounted return of each reward task."""
+                 progress: Progress, steps: int = EPISODE_STEPS, num_threads: int | None = None,
+                 report: Report | None = None) -> dict[str, Any]:
+    """Mean and std of the undiscounted return of each reward task (tasks it cannot prompt go to `report`)."""
+    report = report if report is not None else Report()
     from humanoid_env.tasks import get_reward, task_category
 
     fns = [get_reward(t) for t in tasks]  # fail on a bad name before any simulation
@@ -73,7 +110,11 @@ def reward_suite(agent: Agent, tasks: Sequence[str], episodes: int, init: tuple[
     out: dict[str, Any] = {}
     try:
         for task, fn in zip(tasks, fns):
-            z = _batch_z(agent.reward_z(task), episodes)
+            z1 = _prompt(report, "reward", task, lambda: agent.reward_z(task))
+            if z1 is None:
+                progress.advance(bar, steps)
+                continue
+            z = _batch_z(z1, episodes)
             ret = np.zeros(episodes)
 
             def score(t: int, nxt: np.ndarray, alive: np.ndarray) -> None:
@@ -82,14 +123,17 @@ def reward_suite(agent: Agent, tasks: Sequence[str], episodes: int, init: tuple[
             roll.run(agent, lambda t: z, *init, score, lambda: progress.advance(bar))
             out[task] = {"category": task_category(task), "return_mean": float(ret.mean()),
                          "return_std": float(ret.std()), "returns": ret.tolist()}
+            report.result("reward", task, out[task])
     finally:
         roll.close()
     return out
 
 
 def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np.ndarray, np.ndarray],
-               progress: Progress, steps: int = EPISODE_STEPS, num_threads: int | None = None) -> dict[str, Any]:
-    """Success rate and proximity of each named goal pose."""
+               progress: Progress, steps: int = EPISODE_STEPS, num_threads: int | None = None,
+               report: Report | None = None) -> dict[str, Any]:
+    """Success rate and proximity of each named goal pose (poses it cannot prompt go to `report`)."""
+    report = report if report is not None else Report()
     from humanoid_env.tasks import goal_obs
 
     targets = [goal_obs(g) for g in goals]
@@ -98,7 +142,11 @@ def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np
     out: dict[str, Any] = {}
     try:
         for name, goal in zip(goals, targets):
-            z = _batch_z(agent.goal_z(goal), episodes)
+            z1 = _prompt(report, "goal", name, lambda: agent.goal_z(goal))
+            if z1 is None:
+                progress.advance(bar, steps)
+                continue
+            z = _batch_z(z1, episodes)
             dist = np.empty((episodes, steps))
 
             def measure(t: int, nxt: np.ndarray, alive: np.ndarray) -> None:
@@ -108,20 +156,30 @@ def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np
             finite = np.where(np.isfinite(dist), dist, np.nan)
             out[name] = {"success": float(goal_success(dist).mean()), "proximity": float(goal_proximity(dist).mean()),
                          "min_distance": float(np.nanmin(finite)) if np.isfinite(dist).any() else float("inf")}
+            report.result("goal", name, out[name])
     finally:
         roll.close()
     return out
 
 
 def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch: int = 32,
-                   num_threads: int | None = None) -> dict[str, Any]:
-    """Tracking success (d_smpl <= 0.5 at every step) and EMD for each clip, from its first state."""
+                   num_threads: int | None = None, report: Report | None = None) -> dict[str, Any]:
+    """Tracking success (d_smpl <= 0.5 at every step) and EMD for each clip, from its first state (clips it
+    cannot prompt go to `report`)."""
+    report = report if report is not None else Report()
     out: dict[str, Any] = {}
     bar = progress.add_task("tracking", total=sum(c.n_frames - 1 for c in clips))
     for start in range(0, len(clips), batch):
-        group = list(clips[start:start + batch])
+        prompted = [(c, _prompt(report, "tracking", c.name, lambda c=c: agent.track_z(c.obs)))
+                    for c in clips[start:start + batch]]
+        for c, z in prompted:
+            if z is None:
+                progress.advance(bar, c.n_frames - 1)
+        group = [c for c, z in prompted if z is not None]
+        if not group:
+            continue
         steps = max(c.n_frames for c in group) - 1
-        zs = [np.asarray(agent.track_z(c.obs), dtype=np.float32) for c in group]
+        zs = [np.asarray(z, dtype=np.float32) for _, z in prompted if z is not None]
         for c, z in zip(group, zs):
             if z.ndim != 2 or len(z) < 1:
                 raise ValueError(f"track_z for clip {c.name!r} must return (T, d) latents, got shape {z.shape}")
@@ -148,6 +206,7 @@ def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch
             agent_traj = traj[i, :c.n_frames]
             out[c.name] = {"success": float(tracking_success(agent_traj, c.obs) and not dead[i]),
                            "emd": emd(agent_traj, c.obs), "frames": c.n_frames}
+            report.result("tracking", c.name, out[c.name])
             progress.advance(bar, c.n_frames - 1)
     return out
 
@@ -199,33 +258,60 @@ def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = Non
     chosen = (_split_names(tasks, motions, wanted) if tasks
               else {"reward": list(TASKS), "goal": list(GOALS), "tracking": clip_names})
     results: dict[str, Any] = {"agent": agent_name or getattr(agent, "name", type(agent).__name__),
-                               "episodes": episodes, "steps": steps, "fall_prob": fall_prob, "seed": seed}
+                               "episodes": episodes, "steps": steps, "fall_prob": fall_prob, "seed": seed,
+                               "complete": False}
+    report = Report(results, Path(out) if out is not None else None)
     init = _initial_states(episodes, fall_prob, motions, seed) if {"reward", "goal"} & set(wanted) else None
-    columns = (TextColumn("{task.description:>8}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    columns = (TextColumn("{task.description:>8}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TextColumn("eta"), TimeRemainingColumn())
     with Progress(*columns, disable=not show_progress, transient=False) as progress:
+        if show_progress:
+            progress.console.print(plan(chosen, wanted, episodes, steps, motions), highlight=False)
         if "reward" in wanted and chosen["reward"]:
-            results["reward"] = reward_suite(agent, chosen["reward"], episodes, init, progress, steps, num_threads)
+            reward_suite(agent, chosen["reward"], episodes, init, progress, steps, num_threads, report)
         if "goal" in wanted and chosen["goal"]:
-            results["goal"] = goal_suite(agent, chosen["goal"], episodes, init, progress, steps, num_threads)
+            goal_suite(agent, chosen["goal"], episodes, init, progress, steps, num_threads, report)
         if "tracking" in wanted and chosen["tracking"]:
             by_name = {c.name: c for c in motions.clips}
-            results["tracking"] = tracking_suite(agent, [by_name[n] for n in chosen["tracking"]], progress,
-                                                 num_threads=num_threads)
+            tracking_suite(agent, [by_name[n] for n in chosen["tracking"]], progress, num_threads=num_threads,
+                           report=report)
     from fbcpr.evaluation.report import summarize
 
     results["summary"] = summarize(results)
+    results["complete"] = True
     if out is not None:
         write_results(results, Path(out))
     return results
 
 
+def plan(chosen: dict[str, list[str]], wanted: Sequence[str], episodes: int, steps: int, motions: Any) -> str:
+    """What a run will simulate, said before it starts: tasks x episodes x steps, and the clips to track."""
+    parts, total = [], 0
+    for suite, what in (("reward", "reward tasks"), ("goal", "goal poses")):
+        if suite in wanted and chosen[suite]:
+            parts.append(f"{len(chosen[suite])} {what} x {episodes} episodes x {steps} steps")
+            total += len(chosen[suite]) * episodes * steps
+    if "tracking" in wanted and chosen["tracking"]:
+        frames = {c.name: c.n_frames - 1 for c in motions.clips}
+        parts.append(f"{len(chosen['tracking'])} clips to track")
+        total += sum(frames[n] for n in chosen["tracking"])
+    return f"evaluating {', '.join(parts) or 'nothing'}: {total:,} env steps"
+
+
 def write_results(results: dict[str, Any], out: Path) -> list[Path]:
     """results.json plus bar-chart PNGs; returns the written paths."""
-    from fbcpr.evaluation.report import json_safe, plot_results
+    from fbcpr.evaluation.report import plot_results
+
+    return [write_json(results, out), *plot_results(results, out)]
+
+
+def write_json(results: dict[str, Any], out: Path) -> Path:
+    """results.json, replaced atomically (also the partial results of a run still going)."""
+    from fbcpr.evaluation.report import json_safe
 
     out.mkdir(parents=True, exist_ok=True)
     path = out / "results.json"
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(json_safe(results), indent=2, allow_nan=False))
     tmp.replace(path)
-    return [path, *plot_results(results, out)]
+    return path

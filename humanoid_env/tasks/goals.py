@@ -7,6 +7,7 @@ A goal is a full state with zero velocities; `goal_obs` is its observation.
 """
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
@@ -173,7 +174,9 @@ def _balance(m: mujoco.MjModel, qpos: np.ndarray, pose: GoalPose) -> np.ndarray:
 
 def _lookup(name: str) -> GoalPose:
     if name not in GOALS:
-        raise ValueError(f"unknown goal pose {name!r}; known goals: {', '.join(GOALS)}")
+        close = difflib.get_close_matches(name, list(GOALS), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"unknown goal {name!r}{hint}; known goals: {', '.join(GOALS)}")
     return GOALS[name]
 
 

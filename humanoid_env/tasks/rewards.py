@@ -7,6 +7,7 @@ only next observations exactly as it scores a live episode. Formulas and thresho
 """
 from __future__ import annotations
 
+import difflib
 import re
 from dataclasses import dataclass
 from typing import Callable, Protocol
@@ -364,8 +365,10 @@ def list_families() -> list[str]:
 
 
 def _unknown(name: str, why: str) -> ValueError:
-    return ValueError(f"{why}: {name!r}. Known families: {', '.join(FAMILIES)}; combine with '*' (product) "
-                      f"or '+' (mean), e.g. 'move-ego-0-2*raisearms-h-h'")
+    close = difflib.get_close_matches(name, TASKS, n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return ValueError(f"{why} {name!r}{hint}. Known families: {', '.join(FAMILIES)}; combine with '*' (product) "
+                      f"or '+' (mean), e.g. 'move-ego-0-2*raisearms-h-h'; `fbcpr tasks` lists them all")
 
 
 def _parse_single(name: str) -> _Reward:
@@ -373,7 +376,7 @@ def _parse_single(name: str) -> _Reward:
         m = pattern.fullmatch(name)
         if m:
             return build(*m.groups())
-    raise _unknown(name, "unknown reward")
+    raise _unknown(name, "unknown reward task")
 
 
 def get_reward(name: str) -> _Reward:
@@ -382,7 +385,7 @@ def get_reward(name: str) -> _Reward:
     `*` binds tighter than `+`: `a*b+c` is the mean of (a times b) and c.
     """
     if not isinstance(name, str) or not name.strip():
-        raise _unknown(str(name), "empty reward name")
+        raise _unknown(str(name), "empty reward task name")
     text = name.strip().replace(" ", "")
     means = []
     for part in text.split("+"):

@@ -81,15 +81,18 @@ def _retargeter() -> Retargeter:
 
 
 def import_file(path: str | os.PathLike, up_axis: str | None = None, loop_seconds: float = 0.0,
-                use_cache: bool = True) -> tuple[Clip, RetargetReport]:
+                use_cache: bool = True, joint_map: dict[str, str] | None = None) -> tuple[Clip, RetargetReport]:
     """Convert one motion file to a 30 Hz clip, with a report (clipped joints, floor contact quality).
 
     up_axis overrides the format's default (AMASS "z", BVH "y"; DeepMimic is always y up).
     loop_seconds > 0 repeats cyclic clips (DeepMimic "wrap") with accumulated root offset until they last that long.
+    joint_map names BVH joints for keypoints (`motions.importers.bvh.NAMES`) of a rig whose names are unknown.
     """
     path = Path(path)
     fmt = detect_format(path)
-    options = {"up_axis": up_axis, "loop_seconds": loop_seconds}
+    options: dict = {"up_axis": up_axis, "loop_seconds": loop_seconds}
+    if joint_map:
+        options["joint_map"] = joint_map
     key = _cache_key(path, fmt, options) if use_cache else None
     if key is not None:
         cached = cache_dir() / f"{key}.npz"
@@ -113,7 +116,7 @@ def import_file(path: str | os.PathLike, up_axis: str | None = None, loop_second
         else:
             from motions.importers.bvh import load_bvh
 
-            src = load_bvh(path, up_axis=up_axis or "y")
+            src = load_bvh(path, up_axis=up_axis or "y", joint_map=joint_map)
         qpos, report = _retargeter().run(src)
         name, source, license_, loop = src.name, src.source, src.license, src.loop
     if loop and loop_seconds > 0 and qpos.shape[0] > 2:

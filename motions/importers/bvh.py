@@ -2,8 +2,10 @@
 
 Joint rotations follow each joint's CHANNELS order as intrinsic rotations in degrees; a joint with position
 channels uses them as its translation, otherwise its OFFSET. BVH files are y up by convention (`up_axis="y"`);
-units do not matter because the retargeter rescales by leg length. Keypoints are found by joint name (CMU names
-first, then common alternatives); rest frames are unknown, so orientations are derived from the keypoints.
+units do not matter because the retargeter rescales by leg length. Keypoints are found by joint name (a user
+joint map first, then CMU names, then common alternatives such as MakeHuman's); a foot with no toe joint of a known
+name uses whatever joint or End Site hangs below it. Rest frames are unknown, so orientations are derived from the
+keypoints.
 """
 from __future__ import annotations
 
@@ -20,17 +22,27 @@ NAMES = {
     "l_hip": ("leftupleg", "lefthip", "lhip", "l_hip", "leftthigh", "lthigh"),
     "l_knee": ("leftleg", "leftknee", "lknee", "l_knee", "leftshin", "lshin", "leftlowerleg"),
     "l_ankle": ("leftfoot", "leftankle", "lankle", "l_ankle", "lfoot"),
-    "l_toe": ("lefttoebase", "lefttoe", "ltoe", "l_toe", "lefttoes"),
+    "l_toe": ("lefttoebase", "lefttoe", "ltoe", "l_toe", "lefttoes", "toe1-1.l", "toes.l", "toe.l"),
     "neck": ("neck", "neck1", "lowerneck"),
     "head": ("head",),
     "l_shoulder": ("leftarm", "leftupperarm", "lshldr", "leftshoulder", "l_shoulder"),
     "l_elbow": ("leftforearm", "leftelbow", "leftlowerarm", "lforearm", "l_elbow"),
     "l_wrist": ("lefthand", "leftwrist", "lhand", "l_wrist"),
 }
+
+
+def _right(name: str) -> str:
+    """The right-side twin of a left joint name: leftfoot, l_foot, lfoot (CMU, Poser) and toe.l (MakeHuman)."""
+    if name.endswith(".l"):
+        return name[:-2] + ".r"
+    if "left" in name:
+        return name.replace("left", "right")
+    return "r" + name[1:]
+
+
 for _k, _v in list(NAMES.items()):
     if _k.startswith("l_"):
-        NAMES["r_" + _k[2:]] = tuple(n.replace("left", "right").replace("l_", "r_") if "left" in n or n.startswith("l_")
-                                     else "r" + n[1:] for n in _v)
+        NAMES["r_" + _k[2:]] = tuple(_right(n) for n in _v)
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
 
 
@@ -160,11 +172,16 @@ def _find(joints: list[Joint], key: str) -> int | None:
     return None
 
 
-def load_bvh(path: str | Path, up_axis: str = "y") -> SourceMotion:
-    """Keypoints of a BVH clip in our z-up world."""
+def load_bvh(path: str | Path, up_axis: str = "y", joint_map: dict[str, str] | None = None) -> SourceMotion:
+    """Keypoints of a BVH clip in our z-up world; `joint_map` names the joint of any keypoint (l_hip, r_toe, head,
+    ...) for a rig whose names are not known here."""
     path = Path(path)
     if up_axis not in ("y", "z"):
         raise ValueError(f"up_axis must be 'y' or 'z', got {up_axis!r}")
+    joint_map = dict(joint_map or {})
+    unknown = sorted(set(joint_map) - set(NAMES))
+    if unknown:
+        raise BvhFormatError(f"joint map: unknown keypoint {unknown[0]!r} (keypoints: {', '.join(NAMES)})")
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as err:
@@ -174,13 +191,21 @@ def load_bvh(path: str | Path, up_axis: str = "y") -> SourceMotion:
     if up_axis == "y":
         world = world @ Y_UP_TO_Z_UP.T
     idx: dict[str, int] = {}
+    names = [j.name for j in joints]
     for key in NAMES:
+        if key in joint_map:
+            if joint_map[key] not in names:
+                raise BvhFormatError(f"{path}: joint map: no joint named {joint_map[key]!r} for {key}")
+            idx[key] = names.index(joint_map[key])
+            continue
         found = _find(joints, key)
-        if found is None and key in ("l_toe", "r_toe", "head"):  # fall back to the End Site below foot / neck
-            parent = idx.get(key[:2] + "ankle" if key != "head" else "neck")
-            found = next((i for i, j in enumerate(joints) if j.parent == parent and j.end_site), None)
+        if found is None and key in ("l_toe", "r_toe", "head"):  # the End Site below the neck, or below the foot
+            parent = idx.get(key[:2] + "ankle" if key != "head" else "neck")  # any joint there too: the foot's tip
+            below = [i for i, j in enumerate(joints) if j.parent == parent and parent is not None]
+            found = next((i for i in below if joints[i].end_site), below[0] if below and key != "head" else None)
         if found is None:
-            raise BvhFormatError(f"{path}: no joint for {key} (tried {', '.join(NAMES[key])})")
+            raise BvhFormatError(f"{path}: no joint for {key} (tried {', '.join(NAMES[key])}; name it with a joint "
+                                 f"map, e.g. `fbcpr motions import --joint-map map.yaml` with `{key}: JointName`)")
         idx[key] = found
     positions = {k: world[:, i] for k, i in idx.items()}
     return SourceMotion(name=path.stem, positions=positions, times=np.arange(values.shape[0]) * frame_time,
