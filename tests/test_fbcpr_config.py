@@ -52,7 +52,7 @@ def test_preset_then_overrides_and_roundtrip(tmp_path):
     assert load_config(p) == cfg
 
 
-@pytest.mark.parametrize("name", ["quickstart", "small", "paper-S", "paper-M", "toy"])
+@pytest.mark.parametrize("name", ["quickstart", "small", "paper-S", "paper-M", "toy", "gpu"])
 def test_shipped_configs_load(name):
     load_config(CONFIGS / f"{name}.yaml")
 
