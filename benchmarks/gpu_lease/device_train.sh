@@ -11,13 +11,17 @@ RUN=${2:?usage: device_train.sh CONFIG RUN_DIR}
 WHEELS=${WHEELS:-.whl}
 WATCH_SECONDS=${WATCH_SECONDS:-180}
 PYTHON=${PYTHON:-$(command -v python3 || command -v python)}
-VENV=.devenv
-VPY=$VENV/bin/python
 start=$SECONDS
 
-# --without-pip: no ensurepip needed; the image's pip, visible through --system-site-packages, installs into the
-# venv when run by its interpreter. --no-deps: exactly the carried wheels, nothing fetched, nothing upgraded.
-[ -x "$VPY" ] || "$PYTHON" -m venv --system-site-packages --without-pip "$VENV"
+# A venv over the image's Python keeps its packages visible and untouched; --without-pip needs no ensurepip: the
+# image's pip, run by the venv's interpreter, installs into the venv. An image whose Python is a venv already is
+# installed into directly (a venv on top would not see its packages). --no-deps: exactly the carried wheels.
+if "$PYTHON" -c 'import sys; sys.exit(sys.prefix == sys.base_prefix)'; then
+  VPY=$PYTHON
+else
+  VPY=.devenv/bin/python
+  [ -x "$VPY" ] || "$PYTHON" -m venv --system-site-packages --without-pip .devenv
+fi
 "$VPY" -m pip install -q --no-index --find-links "$WHEELS" --no-deps -r "$WHEELS/requirements.txt"
 "$VPY" -m pip install -q --no-index --find-links "$WHEELS" --no-deps -e .
 echo "installed in $((SECONDS - start)) s"
@@ -49,6 +53,7 @@ if [ -e "$RUN" ]; then
   exit 1
 fi
 mkdir -p "$(dirname "$RUN")"
+echo "$VPY" > "$RUN.python"  # for device_wait.sh
 args=(train "$CONFIG" --out "$RUN" --device "${FBCPR_DEVICE:-cuda}" --no-progress)
 if [ -n "${FBCPR_STEPS:-}" ]; then
   args+=(--steps "$FBCPR_STEPS")

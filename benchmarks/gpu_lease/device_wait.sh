@@ -12,8 +12,7 @@ RUN=${1:?usage: device_wait.sh RUN_DIR [SECONDS] [stop]}
 WAIT=${2:-540}
 MODE=${3:-}
 : "${OUT:?OUT must name the folder whose files come back}"
-VPY=.devenv/bin/python
-[ -x "$VPY" ] || VPY=$(command -v python3 || command -v python)
+VPY=$(cat "$RUN.python" 2> /dev/null || command -v python3)
 PID=$(cat "$RUN.pid" 2> /dev/null)
 start=$SECONDS
 
