@@ -4,6 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from fbcpr import BFM
 from fbcpr.checkpoint import save_checkpoint
@@ -27,20 +28,25 @@ def run_dir(tmp_path):
     return tmp_path / "run"
 
 
-def test_pack_fits_the_cap_and_unpacks_to_a_loadable_model(run_dir, tmp_path, monkeypatch):
-    monkeypatch.setattr(pack, "PART_BYTES", 200_000)
-    monkeypatch.setattr(pack, "SLACK_BYTES", 50_000)
-    model_bytes = (run_dir / "checkpoints" / "step_0000000100" / "model.safetensors").stat().st_size
-    parts = -(-(model_bytes + 1_000_000) // 200_000)  # room for ~1000 of the 3000 float16 states
-    written = pack.pack(run_dir, tmp_path / "out", parts)
-    assert 1 < len(written) <= parts and all(p.stat().st_size <= 200_000 for p in written)
+def test_pack_fits_the_caps_and_unpacks_to_a_loadable_model(run_dir, tmp_path, monkeypatch):
+    monkeypatch.setattr(pack, "PART_BYTES", 100_000)
+    original = BFM.load(run_dir)
+    half_bytes = sum(p.numel() * 2 for p in original.model.parameters())
+    other_bytes = sum(b.numel() * b.element_size() for b in original.model.buffers())
+    monkeypatch.setattr(pack, "TOTAL_BYTES", half_bytes + other_bytes + pack.SLACK_BYTES + 1_000_000)
+    written = pack.pack(run_dir, tmp_path / "out", 50)
+    assert 1 < len(written) and all(p.stat().st_size <= 100_000 for p in written)
+    assert sum(p.stat().st_size for p in written) <= pack.TOTAL_BYTES
     path = pack.unpack(tmp_path / "out", tmp_path / "here")
     bfm = BFM.load(path)
     kept = len(bfm.reward_buffer["next_obs"])
-    assert 500 < kept < 3000  # trimmed to fit, not dropped
+    assert 500 < kept < 3000  # trimmed to fit (1018 bytes a float16 state), not dropped
+    for (name, got), want in zip(bfm.model.state_dict().items(), original.model.state_dict().values()):
+        assert got.dtype == want.dtype  # an ordinary float32 checkpoint again
+        torch.testing.assert_close(got, want, rtol=2**-11, atol=1e-7, msg=name)  # float16 rounding at most
     assert bfm.act(np.zeros(358, np.float32), bfm.prompt.reward("move-ego-0-0")).shape == (69,)
-    # a later pack replaces the parts; a missing part is refused instead of extracting a truncated tar
-    assert pack.pack(run_dir, tmp_path / "out", parts) == written
+    # a later pack replaces the parts; a set with a part missing is refused instead of read truncated
+    assert pack.pack(run_dir, tmp_path / "out", 50) == written
     written[1].unlink()
     with pytest.raises(SystemExit, match=r"misses part\(s\) \[1\]"):
         pack.unpack(tmp_path / "out", tmp_path / "again")

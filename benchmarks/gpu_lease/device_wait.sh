@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Run ON THE DEVICE from the repository root, after device_train.sh, each call right after the previous one
-# returns: waits SECONDS (default 540; less if training dies), then leaves in $OUT at most 8 files of < 16 MiB:
-#   step_XXXXXXXXXX.tar.part<i>-of-<n>   the newest checkpoint as an inference export (pack.py; n <= 6)
+# returns: waits SECONDS (default 540; less if training dies), then leaves in $OUT what a call can return (at most
+# 8 files of 16 MiB, 64 MiB in all):
+#   step_XXXXXXXXXX.tar.part<i>-of-<n>   the newest checkpoint, float16 weights (pack.py; n = 4 for paper-S)
 #   metrics.csv                          the run's whole metrics log
 #   status.txt                           trainer state, GPU use, packing report and the log tail
 # With `stop` as third argument (the lease's last call), it stops the trainer first (SIGTERM: a final checkpoint
