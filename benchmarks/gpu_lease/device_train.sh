@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Run ON THE DEVICE from the repository root (first call of a lease): install the carried wheels offline into a
-# venv that also sees the image's packages (torch with CUDA, numpy, ...), show the GPU, start training detached
-# (setsid + nohup, log in RUN_DIR.log, pid in RUN_DIR.pid) and return once it is updating, or has died.
+# Run ON THE DEVICE from the repository root (first call of a lease): install the carried wheels and fbcpr offline
+# beside the image's packages (torch with CUDA, numpy, ...), show the GPU, start training detached (setsid +
+# nohup, log in RUN_DIR.log, pid in RUN_DIR.pid) and return once it is updating, or has died.
 #   bash benchmarks/gpu_lease/device_train.sh CONFIG RUN_DIR
 # Env: FBCPR_DEVICE (cuda), FBCPR_STEPS (override train.total_env_steps), FBCPR_SETUP_ONLY=1 (install and check
 #      only), WHEELS (.whl), WATCH_SECONDS (180: how long to watch the start), PYTHON (python3).
@@ -12,6 +12,10 @@ WHEELS=${WHEELS:-.whl}
 WATCH_SECONDS=${WATCH_SECONDS:-180}
 PYTHON=${PYTHON:-$(command -v python3 || command -v python)}
 start=$SECONDS
+if [ -e "$RUN" ] && [ -z "${FBCPR_SETUP_ONLY:-}" ]; then
+  echo "$RUN exists already: give a new run dir" >&2
+  exit 1
+fi
 
 # A venv over the image's Python keeps its packages visible and untouched; --without-pip needs no ensurepip: the
 # image's pip, run by the venv's interpreter, installs into the venv. An image whose Python is a venv already is
@@ -61,11 +65,6 @@ print(f"optional packages absent: {', '.join(absent) or 'none'} (EMD: POT, else 
 EOF
 if [ -n "${FBCPR_SETUP_ONLY:-}" ]; then
   exit 0
-fi
-
-if [ -e "$RUN" ]; then
-  echo "$RUN exists already: give a new run dir" >&2
-  exit 1
 fi
 mkdir -p "$(dirname "$RUN")"
 echo "$VPY" > "$RUN.python"  # for device_wait.sh
