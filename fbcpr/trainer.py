@@ -6,7 +6,9 @@ warm-up, then the policy with z ~ nu resampled every `z_update_every` steps), th
 motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the
 model, the exact learner state (target nets, optimisers, normaliser, counters, RNG states, env states and
 optionally the replay buffer) and a reward-inference subsample of the buffer. SIGINT/SIGTERM ends the
-run at the next safe point with a final checkpoint.
+run at the next safe point with a final checkpoint. Optional packages degrade with one warning each: without
+tensorboard metrics go to metrics.csv only; without any EMD solver (POT, or scipy for the equal-length
+fallback) tracking evaluation and the priority refresh are skipped.
 """
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ import random
 import shutil
 import signal
 import time
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
@@ -36,6 +39,7 @@ from fbcpr.buffer import ReplayBuffer, transition_specs
 from fbcpr.checkpoint import CheckpointError, load_checkpoint, load_state_strict, read_trainer_meta, save_checkpoint
 from fbcpr.config import Config, ConfigError
 from fbcpr.envs import EnvBundle, make_env, tracking_scores
+from fbcpr.evaluation.metrics import EMDUnavailable
 
 LIVE_KEYS = ("fb_loss", "actor_loss", "critic_loss", "disc_loss", "reward")
 #: |action| beyond which a component counts as saturated (at a joint limit's side of the PD range).
@@ -119,7 +123,7 @@ class Trainer:
         if resume:
             self._resume()
         self.csv_path = self.out / "metrics.csv"
-        self._writer: Any = None
+        self._writer: Any = None  # SummaryWriter once created, False where tensorboard is missing
 
     # --------------------------------------------------------------------------------- z for rollouts
     def _sample_rollout_z(self, n: int) -> torch.Tensor:
@@ -170,7 +174,7 @@ class Trainer:
         finally:
             for sig, h in handlers.items():
                 signal.signal(sig, h)
-            if self._writer is not None:
+            if self._writer:
                 self._writer.flush()
         return {"env_steps": self.env_steps, "updates": self.updates, "checkpoint": str(path),
                 "interrupted": self._stop, "seconds": time.perf_counter() - t0, **self.last_metrics}
@@ -239,17 +243,23 @@ class Trainer:
         """Track the clips (tracking EMD / success), optionally refresh priorities, plus the custom eval hook."""
         tc = self.cfg.train
         rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
-        scores = tracking_scores(self.agent.model, self.bundle, self.cfg.agent.seq_length, tc.priority_max_clips,
-                                 self.cfg.env.max_episode_steps, rng, stop=self._halt)
+        out: dict[str, float] = {}
+        try:
+            scores = tracking_scores(self.agent.model, self.bundle, self.cfg.agent.seq_length, tc.priority_max_clips,
+                                     self.cfg.env.max_episode_steps, rng, stop=self._halt)
+        except EMDUnavailable as err:  # a run must not die for a missing metric package
+            warnings.warn(f"tracking evaluation and priority refresh skipped, priorities stay as they are: {err}",
+                          RuntimeWarning, stacklevel=2)
+            scores = {}
         if scores is None:  # stopped mid-episode: no partial scores, priorities untouched
             return {}
-        for name, (e, _) in scores.items():
-            self.emd[name] = e
-        out = {"eval/tracking_emd": float(np.mean([e for e, _ in scores.values()])),
-               "eval/tracking_success": float(np.mean([s for _, s in scores.values()]))}
-        if refresh_priorities:
-            fill = float(np.median(list(self.emd.values())))
-            self.bundle.library.set_priorities_from_emd({n: self.emd.get(n, fill) for n in self.bundle.library.names})
+        if scores:
+            self.emd.update({name: e for name, (e, _) in scores.items()})
+            out = {"eval/tracking_emd": float(np.mean([e for e, _ in scores.values()])),
+                   "eval/tracking_success": float(np.mean([s for _, s in scores.values()]))}
+            if refresh_priorities:
+                fill = float(np.median(list(self.emd.values())))
+                self.bundle.library.set_priorities_from_emd({n: self.emd.get(n, fill) for n in self.bundle.library.names})
         if self.custom_eval is not None:
             out.update({f"eval/{k}": float(v) for k, v in self.custom_eval(self.agent).items()})
         return out
@@ -271,12 +281,11 @@ class Trainer:
 
     def _log(self, row: dict[str, float]) -> None:
         if self._writer is None:
-            from torch.utils.tensorboard import SummaryWriter
-
-            self._writer = SummaryWriter(str(self.out / "tb"))
-        for k, v in row.items():
-            if k != "env_steps":
-                self._writer.add_scalar(k, v, self.env_steps)
+            self._writer = _summary_writer(self.out / "tb") or False
+        if self._writer:
+            for k, v in row.items():
+                if k != "env_steps":
+                    self._writer.add_scalar(k, v, self.env_steps)
         new = not self.csv_path.exists()
         with open(self.csv_path, "a", newline="") as f:
             w = csv.writer(f)
@@ -498,6 +507,16 @@ def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Pa
     `keep_every` env steps (0: none spared)."""
     steps = sorted(p for p in root.glob("step_*") if p.is_dir())[:-keep_last]
     return [p for p in steps if not (keep_every and int(p.name.split("_")[1]) % keep_every == 0)]
+
+
+def _summary_writer(path: Path) -> Any:
+    """A TensorBoard writer, or None where tensorboard is not installed (metrics.csv is then the only log)."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        warnings.warn("tensorboard is not installed: metrics go to metrics.csv only", RuntimeWarning, stacklevel=2)
+        return None
+    return SummaryWriter(str(path))
 
 
 def _episode_counter(env: Any) -> np.ndarray:

@@ -3,11 +3,13 @@
 All distances use d_smpl: the Euclidean distance between the pose parts (observation[..., :214]: root height,
 body positions and orientations; velocities ignored). Inputs may be full observations (..., 358) or pose
 parts (..., 214).
+
+POT is imported only when an EMD is computed, so training runs where it is not installed (the GPU lease
+image, benchmarks/gpu_lease): there the trainer's tracking EMD falls back to an exact assignment solver.
 """
 from __future__ import annotations
 
 import numpy as np
-import ot
 
 from humanoid_env.observation import OBS_DIM, POSE
 
@@ -15,6 +17,10 @@ POSE_DIM = POSE.stop - POSE.start
 GOAL_BETA = 2.0      # goal reached when d_smpl <= beta
 GOAL_SIGMA = 2.0     # proximity decays linearly to 0 over this margin beyond beta
 TRACK_XI = 0.5       # tracking succeeds when d_smpl <= xi at every step
+
+
+class EMDUnavailable(ImportError):
+    """No solver for this EMD: POT is not installed and the assignment fallback does not apply."""
 
 
 def pose_part(x: np.ndarray, who: str = "pose_part") -> np.ndarray:
@@ -58,5 +64,25 @@ def emd(agent: np.ndarray, reference: np.ndarray) -> float:
     a, r = pose_part(agent, "emd"), pose_part(reference, "emd")
     if a.ndim != 2 or r.ndim != 2 or len(a) == 0 or len(r) == 0:
         raise ValueError(f"emd: trajectories must be non-empty (T, D) arrays, got {a.shape} and {r.shape}")
+    try:
+        import ot
+    except ModuleNotFoundError:
+        return _emd_by_assignment(a, r)
     cost = ot.dist(a, r, metric="euclidean")
     return float(ot.emd2(np.full(len(a), 1.0 / len(a)), np.full(len(r), 1.0 / len(r)), cost))
+
+
+def _emd_by_assignment(a: np.ndarray, r: np.ndarray) -> float:
+    """The same EMD without POT, for equal lengths (all tracking compares): with n uniform points on each side
+    an optimal transport plan is a permutation (Birkhoff), so the EMD is the mean cost of scipy's optimal
+    assignment. Raises EMDUnavailable for unequal lengths or without scipy."""
+    if len(a) != len(r):
+        raise EMDUnavailable(f"emd: trajectories of unequal length ({len(a)} vs {len(r)}) need POT (pip install POT)")
+    try:
+        from scipy.optimize import linear_sum_assignment
+        from scipy.spatial.distance import cdist
+    except ModuleNotFoundError:
+        raise EMDUnavailable("emd: needs POT or scipy (pip install POT)") from None
+    cost = cdist(a, r)
+    rows, cols = linear_sum_assignment(cost)
+    return float(cost[rows, cols].mean())

@@ -1,0 +1,106 @@
+#!/usr/bin/env bash
+# Run ON THE DEVICE from the repository root (first call of a lease): install the carried wheels and fbcpr offline
+# beside the image's packages (torch with CUDA, numpy, ...), show the GPU, start training detached (setsid +
+# nohup, log in RUN_DIR.log, pid in RUN_DIR.pid) and return once it is updating, or has died.
+#   bash benchmarks/gpu_lease/device_train.sh CONFIG RUN_DIR
+# Env: FBCPR_DEVICE (cuda), FBCPR_STEPS (override train.total_env_steps), FBCPR_SETUP_ONLY=1 (install and check
+#      only), WHEELS (.whl), WATCH_SECONDS (180: how long to watch the start), PYTHON (python3).
+set -euo pipefail
+CONFIG=${1:?usage: device_train.sh CONFIG RUN_DIR}
+RUN=${2:?usage: device_train.sh CONFIG RUN_DIR}
+WHEELS=${WHEELS:-.whl}
+WATCH_SECONDS=${WATCH_SECONDS:-180}
+PYTHON=${PYTHON:-$(command -v python3 || command -v python)}
+start=$SECONDS
+if [ -e "$RUN" ] && [ -z "${FBCPR_SETUP_ONLY:-}" ]; then
+  echo "$RUN exists already: give a new run dir" >&2
+  exit 1
+fi
+
+# A venv over the image's Python keeps its packages visible and untouched; --without-pip needs no ensurepip: the
+# image's pip, run by the venv's interpreter, installs into the venv. An image whose Python is a venv already is
+# installed into directly (a venv on top would not see its packages). --no-deps: exactly the carried wheels.
+if "$PYTHON" -c 'import sys; sys.exit(sys.prefix == sys.base_prefix)'; then
+  VPY=$PYTHON
+else
+  VPY=.devenv/bin/python
+  [ -x "$VPY" ] || "$PYTHON" -m venv --system-site-packages --without-pip .devenv
+fi
+# mujoco and gymnasium at the versions pinned here (the physics that evaluation here uses); their other
+# dependencies only where the image lacks them (it has cloudpickle, say), so no package of the image changes.
+"$VPY" - "$WHEELS/requirements.txt" > "$WHEELS/install.txt" << 'EOF'
+import importlib.metadata as md, sys
+for line in open(sys.argv[1]).read().split():
+    name = line.split("==")[0]
+    try:
+        have = md.version(name)
+    except md.PackageNotFoundError:
+        have = None
+    if name in ("mujoco", "mujoco-core", "gymnasium") or have is None:
+        print(line)
+    else:
+        print(f"{name} {have} is in the image already", file=sys.stderr)
+EOF
+"$VPY" -m pip install -q --no-index --find-links "$WHEELS" --no-deps -r "$WHEELS/install.txt"
+"$VPY" -m pip install -q --no-index --find-links "$WHEELS" --no-deps -e .
+echo "installed in $((SECONDS - start)) s"
+if command -v nvidia-smi > /dev/null; then
+  nvidia-smi
+fi
+"$VPY" - << 'EOF'
+import importlib.util, os, platform
+import gymnasium, mujoco, numpy, torch
+import fbcpr.cli.app, fbcpr.trainer  # the whole training path imports
+print(f"python {platform.python_version()}, torch {torch.__version__} (CUDA {torch.version.cuda}), mujoco "
+      f"{mujoco.__version__}, gymnasium {gymnasium.__version__}, numpy {numpy.__version__}, {os.cpu_count()} CPUs")
+if torch.cuda.is_available():
+    p = torch.cuda.get_device_properties(0)
+    print(f"cuda: {torch.cuda.device_count()} device(s), {p.name}, {p.total_memory / 2**30:.0f} GiB, "
+          f"capability {p.major}.{p.minor}")
+else:
+    print("cuda: not available")
+absent = [m for m in ("ot", "scipy", "tensorboard", "dm_control", "mink") if importlib.util.find_spec(m) is None]
+print(f"optional packages absent: {', '.join(absent) or 'none'} (EMD: POT, else scipy's assignment, else no "
+      f"priority refresh; tensorboard: else metrics.csv only)")
+EOF
+if [ -n "${FBCPR_SETUP_ONLY:-}" ]; then
+  exit 0
+fi
+mkdir -p "$(dirname "$RUN")"
+echo "$VPY" > "$RUN.python"  # for device_wait.sh
+args=(train "$CONFIG" --out "$RUN" --device "${FBCPR_DEVICE:-cuda}" --no-progress)
+if [ -n "${FBCPR_STEPS:-}" ]; then
+  args+=(--steps "$FBCPR_STEPS")
+fi
+detach=(setsid nohup)  # its own session: the trainer outlives this call
+command -v setsid > /dev/null || detach=(nohup)
+PYTHONUNBUFFERED=1 "${detach[@]}" "$VPY" -m fbcpr.cli.app "${args[@]}" > "$RUN.log" 2>&1 < /dev/null &
+pid=$!
+echo "$pid" > "$RUN.pid"
+echo "training: pid $pid, log $RUN.log, started $((SECONDS - start)) s after this script"
+
+# Watch the start: the first gradient updates come after the random warm-up.
+metric() { awk -F, -v k="$1" '$1 == k { v = $2 } END { print v }' "$RUN/metrics.csv" 2>/dev/null; }
+watched=0
+while [ "$watched" -lt "$WATCH_SECONDS" ]; do
+  sleep 5
+  watched=$((watched + 5))
+  if ! kill -0 "$pid" 2> /dev/null; then
+    echo "training exited after ${watched} s; log tail:" >&2
+    tail -n 40 "$RUN.log" >&2
+    if [ -f "$RUN/summary.json" ]; then  # a short run (FBCPR_STEPS) that finished
+      exit 0
+    fi
+    exit 1
+  fi
+  if awk -v u="$(metric updates)" 'BEGIN { exit !(u + 0 > 0) }'; then
+    break
+  fi
+done
+echo "after ${watched} s: env_steps $(metric env_steps), updates $(metric updates), env steps/s $(metric env_steps_per_s)," \
+     "fb_loss $(metric fb_loss), actor_loss $(metric actor_loss)"
+tail -n 20 "$RUN.log"
+if command -v nvidia-smi > /dev/null; then
+  nvidia-smi --query-gpu=utilization.gpu,memory.used,memory.total --format=csv
+fi
+echo "running: now call device_wait.sh $RUN at once (the machine is released 30 s after a call returns)"
