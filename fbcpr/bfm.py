@@ -29,7 +29,7 @@ from fbcpr.checkpoint import (
     save_checkpoint,
 )
 from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.prompt import Prompt
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING
 
@@ -79,6 +79,9 @@ class BFM:
         Hugging Face repo id (downloaded once into the HF cache; HF_HUB_OFFLINE=1 uses the cache only)."""
         path = resolve_checkpoint(path_or_repo_id, revision=revision, cache_dir=cache_dir)
         ckpt = load_checkpoint(path, device=device)
+        if ckpt.algorithm != "fb_cpr":
+            raise CheckpointError(f"{path}: holds a {ckpt.algorithm} agent, not a prompt-able FB-CPR model "
+                                  "(evaluate it with `fbcpr eval`, which runs any agent)")
         return cls(ckpt.model, ckpt.config, source=str(path_or_repo_id), checkpoint=ckpt)
 
     @classmethod

@@ -132,10 +132,13 @@ class TrainConfig:
 
 @dataclass
 class Config:
-    """A whole run: model sizes, algorithm, environment and training loop."""
+    """A whole run: the method (`algorithm`), model sizes, its hyperparameters, environment and training loop.
 
+    `agent` holds the named method's hyperparameters (`fbcpr.methods`): `AgentConfig` for FB-CPR."""
+
+    algorithm: str = _f("fb_cpr")
     model: ModelConfig = field(default_factory=ModelConfig)
-    agent: AgentConfig = field(default_factory=AgentConfig)
+    agent: Any = field(default_factory=AgentConfig)
     env: EnvConfig = field(default_factory=EnvConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
@@ -179,7 +182,7 @@ def _type_ok(value: Any, tp: Any) -> tuple[bool, Any]:
     return False, value
 
 
-def _build(cls: type, data: Any, prefix: str) -> Any:
+def _build(cls: type, data: Any, prefix: str, sections: dict[str, type] | None = None) -> Any:
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -199,7 +202,7 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
     kwargs = {}
     for name, value in data.items():
         key = f"{prefix}.{name}" if prefix else name
-        tp = hints[name]
+        tp = (sections or {}).get(name, hints[name])
         if dataclasses.is_dataclass(tp):
             kwargs[name] = _build(tp, value, key)
             continue
@@ -219,8 +222,13 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
 
 
 def config_from_dict(data: dict[str, Any]) -> Config:
-    """Build and validate a Config from plain data (as loaded from YAML)."""
-    cfg = _build(Config, data, "")
+    """Build and validate a Config from plain data (as loaded from YAML); `algorithm` picks the `agent:` schema."""
+    from fbcpr.methods import get_method
+
+    algorithm = data.get("algorithm", Config.algorithm) if isinstance(data, dict) else Config.algorithm
+    if not isinstance(algorithm, str):
+        raise ConfigError(f"algorithm: expected str, got {algorithm!r}")
+    cfg = _build(Config, data, "", sections={"agent": get_method(algorithm).agent_config()})
     if cfg.agent.batch_size % cfg.agent.seq_length:
         raise ConfigError(f"agent.batch_size: must be a multiple of agent.seq_length ({cfg.agent.seq_length}), "
                           f"got {cfg.agent.batch_size}")

@@ -140,7 +140,7 @@ def test_cli_eval_on_a_tiny_checkpoint(tmp_path):
     from fbcpr.checkpoint import save_checkpoint
     from fbcpr.cli import eval_cmd
     from fbcpr.config import config_from_dict
-    from fbcpr.model import FBCPRModel
+    from fbcpr.fb_cpr.model import FBCPRModel
 
     torch.manual_seed(0)
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},

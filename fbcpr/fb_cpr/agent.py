@@ -15,9 +15,9 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from fbcpr import losses
+from fbcpr.fb_cpr import losses
 from fbcpr.config import AgentConfig, ModelConfig
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.networks import project_sphere
 from fbcpr.precision import resolve_bf16
 
@@ -29,7 +29,9 @@ OPTIMISED = {"forward_map": "lr_f", "backward_map": "lr_b", "actor": "lr_actor",
 
 
 class FBCPRAgent:
-    """Model + target networks + Adam optimisers + the update of Algorithm 1."""
+    """Model + target networks + Adam optimisers + the update of Algorithm 1 (an `fbcpr.protocols.OnlineAgent`)."""
+
+    fields = ("obs", "action", "next_obs", "z", "terminated")
 
     def __init__(self, model_cfg: ModelConfig, agent_cfg: AgentConfig, device: str | torch.device = "cpu",
                  seed: int = 0) -> None:
@@ -52,6 +54,29 @@ class FBCPRAgent:
         self._gradient_penalty = (torch.compiler.disable(losses.gradient_penalty) if agent_cfg.compile
                                   else losses.gradient_penalty)
         self._compute = torch.compile(self._losses) if agent_cfg.compile else self._losses
+
+    @classmethod
+    def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> "FBCPRAgent":
+        return cls(cfg.model, cfg.agent, device, seed)
+
+    @property
+    def z_dim(self) -> int:
+        return self.model.cfg.z_dim
+
+    # ------------------------------------------------------------------------------------- rollouts
+    @torch.no_grad()
+    def rollout_z(self, n: int, online_next_obs: Tensor | None, expert_windows: Tensor) -> Tensor:
+        """n draws from nu for rollouts: B of online states, ER_FB of demonstration windows, uniform."""
+        model = self.model
+        online_b = None
+        if online_next_obs is not None:
+            online_b = model.backward_map(model.normalize(online_next_obs.to(self.device)))
+        expert_z = self.encode_windows(model.normalize(expert_windows.to(self.device)))
+        return self.sample_z(n, online_b, expert_z)
+
+    def act(self, obs: Tensor, z: Tensor) -> Tensor:
+        """The policy's exploration actions (clipped Gaussian noise around the tanh mean)."""
+        return self.model.act(obs, z, mean=False, generator=self.generator)
 
     # ------------------------------------------------------------------------------------- z sampling
     def sample_z(self, n: int, online_b: Tensor | None, expert_z: Tensor | None) -> Tensor:
@@ -167,6 +192,12 @@ class FBCPRAgent:
             "q": Q_sa.mean(), "fz": Fz_pi.mean(), "M_diag": torch.diagonal(M, dim1=-2, dim2=-1).mean(),
             "disc_expert": torch.sigmoid(logits[: w * L]).mean(), "disc_online": torch.sigmoid(logits[w * L:]).mean(),
         }
+
+    @torch.no_grad()
+    def sync_targets(self) -> None:
+        """Every target network := its online network (a warm start loads weights into `model` first)."""
+        for k in TARGETS:
+            self.targets[k].load_state_dict(getattr(self.model, k).state_dict())
 
     @torch.no_grad()
     def soft_update(self) -> None:
