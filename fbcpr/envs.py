@@ -13,9 +13,17 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from fbcpr.config import EnvConfig
+from fbcpr.config import ConfigError, EnvConfig
 from fbcpr.latents import tracking_sums
 from fbcpr.networks import project_sphere
+
+
+#: A registry reward on next states: (next_obs (N, obs_dim), qpos (N, nq), qvel (N, nv)) -> (N,).
+TaskReward = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+def _task_error(err: Exception) -> ConfigError:
+    return ConfigError(f"agent.reward.task: {err.args[0]}")
 
 
 @dataclass
@@ -31,6 +39,7 @@ class EnvBundle:
     clip_start: Callable[[int], tuple[np.ndarray, np.ndarray]]  # clip index -> (qpos, qvel) of frame 0
     emd: Callable[[np.ndarray, np.ndarray], float]        # tracking EMD between two (T, obs_dim) trajectories
     success: Callable[[np.ndarray, np.ndarray], bool]     # tracking success (time-aligned)
+    task_reward: Callable[[str], TaskReward]              # registry task name -> reward of (next_obs, qpos, qvel)
 
 
 def make_env(cfg: EnvConfig, num_envs: int, seed: int) -> EnvBundle:
@@ -42,6 +51,13 @@ def make_env(cfg: EnvConfig, num_envs: int, seed: int) -> EnvBundle:
 
 def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
     from fbcpr.toy import pointmass as pm
+
+    def task_reward(name: str) -> TaskReward:
+        try:
+            fn = pm.get_task(name)
+        except KeyError as err:
+            raise _task_error(err) from None
+        return lambda next_obs, qpos, qvel: fn(next_obs)
 
     lib = pm.DemoLibrary(pm.demo_paths())
     init = pm.MixtureInit(cfg.fall_prob, lib)
@@ -58,6 +74,7 @@ def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
         # mean position error in units of 0.1, so the paper's EMD bins [0.5, 5] span 0.05-0.5 of the arena
         emd=lambda a, b: float(10.0 * pos_err(a, b).mean()),
         success=lambda a, b: bool((pos_err(a, b) <= 0.1).all()),
+        task_reward=task_reward,
     )
 
 
@@ -77,6 +94,14 @@ def _humanoid(cfg: EnvConfig, num_envs: int) -> EnvBundle:
             raise FileNotFoundError(f"env.motions: {path} does not exist (give a folder of clip .npz files or 'synthetic')")
         lib = MotionLibrary.load(path)
     from fbcpr.evaluation.metrics import emd, tracking_success
+    from humanoid_env.tasks import get_reward
+
+    def task_reward(name: str) -> TaskReward:
+        try:
+            fn = get_reward(name)
+        except ValueError as err:
+            raise _task_error(err) from None
+        return lambda next_obs, qpos, qvel: fn(next_obs, None, qpos, qvel)
 
     return EnvBundle(
         env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib), max_episode_steps=cfg.max_episode_steps,
@@ -85,7 +110,7 @@ def _humanoid(cfg: EnvConfig, num_envs: int) -> EnvBundle:
         make_eval_env=lambda n, steps: VectorHumanoidEnv(n, max_episode_steps=steps, action_mapping=cfg.action_mapping),
         clip_obs=lambda i: lib.clips[i].obs,
         clip_start=lambda i: (lib.clips[i].qpos[0], lib.clips[i].qvel[0]),
-        emd=emd, success=tracking_success,
+        emd=emd, success=tracking_success, task_reward=task_reward,
     )
 
 

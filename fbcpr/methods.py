@@ -54,6 +54,7 @@ class Method:
 
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("fb_cpr", "fbcpr.config:AgentConfig", "fbcpr.fb_cpr.agent:FBCPRAgent", "fbcpr.fb_cpr.model:FBCPRModel", True),
+    Method("td3", "fbcpr.td3.config:TD3Config", "fbcpr.td3.agent:TD3Agent", "fbcpr.td3.model:TD3Model", False),
 )}
 
 #: Imitation rewards (`fbcpr.protocols.ImitationReward`) an RL agent can be trained on, by `reward.imitation` name.
@@ -67,9 +68,10 @@ def get_method(name: str) -> Method:
     return METHODS[name]
 
 
-def imitation_reward(name: str, obs_dim: int, cfg: Any, device: torch.device, seed: int) -> ImitationReward:
-    """A fresh imitation reward `name` with its config section `cfg`; ConfigError naming the key otherwise."""
+def imitation_reward(name: str, obs_dim: int, agent_cfg: Any, device: torch.device, seed: int) -> ImitationReward:
+    """A fresh imitation reward `name`, sized by the agent config's section of that name (`agent.amp`, ...);
+    ConfigError naming `agent.reward.imitation` for an unknown name."""
     if name not in IMITATION_REWARDS:
         raise ConfigError(f"agent.reward.imitation: unknown imitation reward {name!r}; choose from "
                           f"{sorted(IMITATION_REWARDS)}")
-    return _load(IMITATION_REWARDS[name])(obs_dim, cfg, device, seed)
+    return _load(IMITATION_REWARDS[name])(obs_dim, getattr(agent_cfg, name), device, seed)

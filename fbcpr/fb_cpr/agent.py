@@ -19,6 +19,7 @@ from fbcpr.fb_cpr import losses
 from fbcpr.config import AgentConfig, ModelConfig
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.networks import project_sphere
+from fbcpr.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.precision import resolve_bf16
 
 #: Modules with a Polyak-averaged target copy.
@@ -212,12 +213,7 @@ class FBCPRAgent:
         tensors: dict[str, Tensor] = {f"target.{k}": v for k, v in self.targets.state_dict().items()}
         meta: dict[str, Any] = {"num_updates": self.num_updates, "optimizers": {}}
         for name, opt in self.optimizers.items():
-            sd = opt.state_dict()
-            meta["optimizers"][name] = {"param_groups": sd["param_groups"], "state_keys": {}}
-            for idx, st in sd["state"].items():
-                meta["optimizers"][name]["state_keys"][str(idx)] = sorted(st)
-                for key, val in st.items():
-                    tensors[f"optim.{name}.{idx}.{key}"] = torch.as_tensor(val)
+            meta["optimizers"][name] = optimizer_state(opt, f"optim.{name}", tensors)
         tensors["agent_generator"] = self.generator.get_state()
         return tensors, meta
 
@@ -229,10 +225,7 @@ class FBCPRAgent:
         self.targets.to(self.device)
         try:
             for name, opt in self.optimizers.items():
-                om = meta["optimizers"][name]
-                state = {int(idx): {key: tensors[f"optim.{name}.{idx}.{key}"] for key in keys}
-                         for idx, keys in om["state_keys"].items()}
-                opt.load_state_dict({"state": state, "param_groups": om["param_groups"]})
+                load_optimizer_state(opt, f"optim.{name}", meta["optimizers"][name], tensors)
             self.generator.set_state(tensors["agent_generator"])
             self.num_updates = int(meta["num_updates"])
         except (KeyError, ValueError, RuntimeError) as e:

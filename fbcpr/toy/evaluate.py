@@ -52,19 +52,24 @@ def reward_z(model: Any, task: str, rng: np.random.Generator, temperature: float
     return project_sphere((reward_weights(r, temperature) @ b)[None])
 
 
+def task_return(model: Any, task: str, rng: np.random.Generator, prompt: bool = True) -> float:
+    """Mean episode return (100 steps, reward in [0, 1] per step) of `task` from N_STARTS random states.
+
+    prompt=True infers the task's z first (a prompt-able FB-CPR model); otherwise the policy acts as it is (a
+    single-task agent trained on this task, or the random policy when model is None)."""
+    env = pm.PointMassVectorEnv(N_STARTS, reward=task, max_episode_steps=HORIZON + 1)
+    obs, _ = env.reset(seed=int(rng.integers(1 << 31)))
+    z = reward_z(model, task, rng).expand(N_STARTS, -1) if prompt and model is not None else None
+    total = np.zeros(N_STARTS)
+    for _ in range(HORIZON):
+        obs, r, *_ = env.step(_act(model, obs, z, rng))
+        total += r
+    return float(total.mean())
+
+
 def reward_returns(model: Any, rng: np.random.Generator) -> dict[str, float]:
-    """Mean episode return (100 steps, reward in [0, 1] per step) of each task from random states."""
-    out = {}
-    for task in pm.TASKS:
-        env = pm.PointMassVectorEnv(N_STARTS, reward=task, max_episode_steps=HORIZON + 1)
-        obs, _ = env.reset(seed=int(rng.integers(1 << 31)))
-        z = None if model is None else reward_z(model, task, rng).expand(N_STARTS, -1)
-        total = np.zeros(N_STARTS)
-        for _ in range(HORIZON):
-            obs, r, *_ = env.step(_act(model, obs, z, rng))
-            total += r
-        out[f"return/{task}"] = float(total.mean())
-    return out
+    """`task_return` of every toy task, zero-shot."""
+    return {f"return/{task}": task_return(model, task, rng) for task in pm.TASKS}
 
 
 def imitation(model: Any, rng: np.random.Generator, seq_length: int = 8) -> dict[str, float]:
