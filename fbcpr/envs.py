@@ -59,7 +59,13 @@ def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
             raise _task_error(err) from None
         return lambda next_obs, qpos, qvel: fn(next_obs)
 
-    lib = pm.DemoLibrary(pm.demo_paths())
+    demos = pm.demo_paths()
+    names = list(demos) if cfg.motions == "synthetic" else [n.strip() for n in cfg.motions.split(",")]
+    unknown = [n for n in names if n not in demos]
+    if unknown:
+        raise ConfigError(f"env.motions: unknown toy demonstration {unknown[0]!r}; give 'synthetic' (all) or "
+                          f"comma-separated names of {sorted(demos)}")
+    lib = pm.DemoLibrary({n: demos[n] for n in names})
     init = pm.MixtureInit(cfg.fall_prob, lib)
 
     def pos_err(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -60,3 +60,48 @@ def emd(agent: np.ndarray, reference: np.ndarray) -> float:
         raise ValueError(f"emd: trajectories must be non-empty (T, D) arrays, got {a.shape} and {r.shape}")
     cost = ot.dist(a, r, metric="euclidean")
     return float(ot.emd2(np.full(len(a), 1.0 / len(a)), np.full(len(r), 1.0 / len(r)), cost))
+
+
+def dtw_pose_error(agent: np.ndarray, expert: np.ndarray) -> float:
+    """NEAR's average DTW pose error: the mean Euclidean distance between the poses that dynamic time warping
+    (dtaidistance's C implementation) pairs up along its optimal path. Inputs: (T, D) and (T', D) pose features,
+    e.g. root-relative body positions; the time warp forgives phase shifts and speed differences."""
+    from dtaidistance import dtw_ndim
+
+    a, e = np.ascontiguousarray(agent, dtype=np.float64), np.ascontiguousarray(expert, dtype=np.float64)
+    if a.ndim != 2 or e.ndim != 2 or a.shape[1] != e.shape[1] or not (len(a) and len(e)):
+        raise ValueError(f"dtw_pose_error: expected non-empty (T, D) trajectories, got {a.shape} and {e.shape}")
+    if not (np.isfinite(a).all() and np.isfinite(e).all()):
+        raise ValueError("dtw_pose_error: input contains NaN or inf")
+    path = np.asarray(dtw_ndim.warping_path(a, e, inner_dist="euclidean", use_c=True))
+    return float(np.linalg.norm(a[path[:, 0]] - e[path[:, 1]], axis=-1).mean())
+
+
+def speed_profile(positions: np.ndarray, fps: float) -> np.ndarray:
+    """|velocity| (T-1,) of a (T, 3) (or (T, 2)) position trajectory sampled at `fps` frames per second."""
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 2 or len(p) < 2:
+        raise ValueError(f"speed_profile: expected (T >= 2, D) positions, got {p.shape}")
+    return np.linalg.norm(np.diff(p, axis=0), axis=-1) * fps
+
+
+def sparc(speed: np.ndarray, fps: float, pad_level: int = 4, cutoff_hz: float = 10.0, amp_threshold: float = 0.05) -> float:
+    """Spectral arc length (SPARC, Balasubramanian et al. 2015): minus the arc length of the normalised magnitude
+    spectrum of a speed profile, up to the adaptive cut-off where the spectrum falls below `amp_threshold`
+    (at most `cutoff_hz`). Closer to 0 is smoother; compare an agent's with its expert's."""
+    v = np.asarray(speed, dtype=np.float64)
+    if v.ndim != 1 or len(v) < 2 or not np.isfinite(v).all():
+        raise ValueError(f"sparc: expected a finite (T >= 2,) speed profile, got shape {v.shape}")
+    if not v.any():
+        return 0.0  # no motion: a flat spectrum of zero length
+    nfft = int(2 ** (np.ceil(np.log2(len(v))) + pad_level))
+    freq = np.fft.rfftfreq(nfft, 1.0 / fps)
+    mag = np.abs(np.fft.rfft(v, nfft))
+    mag = mag / mag.max()
+    keep = freq <= cutoff_hz
+    freq, mag = freq[keep], mag[keep]
+    above = np.flatnonzero(mag >= amp_threshold)
+    freq, mag = freq[above[0]: above[-1] + 1], mag[above[0]: above[-1] + 1]
+    if len(freq) < 2:
+        return 0.0
+    return float(-np.sum(np.hypot(np.diff(freq) / (freq[-1] - freq[0]), np.diff(mag))))

@@ -1,8 +1,9 @@
-"""The `agent:` section of `algorithm: td3` (Table 8), its reward sources and the AMP discriminator's sizes."""
+"""The `agent:` section of `algorithm: td3` (Table 8) with its reward sources and their imitation-reward sections."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from fbcpr.amp.config import AMPConfig
 from fbcpr.config import NON_NEGATIVE, POSITIVE, ConfigError, _check, _f
 
 
@@ -21,16 +22,6 @@ class RewardConfig:
     def validate(self, prefix: str) -> None:
         if not (self.task and self.task_weight > 0) and not (self.imitation and self.imitation_weight > 0):
             raise ConfigError(f"{prefix}: give a task, an imitation reward, or both, with a weight > 0")
-
-
-@dataclass
-class AMPConfig:
-    """The (s, s') discriminator of AMP/GAIfO (Table 7's discriminator sizes and rates by default)."""
-
-    hidden_dim: int = _f(1024, POSITIVE)
-    hidden_layers: int = _f(3, POSITIVE)
-    lr: float = _f(1e-5, POSITIVE)
-    grad_penalty: float = _f(10.0, NON_NEGATIVE)
 
 
 @dataclass

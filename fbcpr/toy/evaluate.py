@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from fbcpr.envs import tracking_latents
+from fbcpr.evaluation.metrics import dtw_pose_error, sparc, speed_profile
 from fbcpr.latents import TEMPERATURE, reward_weights
 from fbcpr.networks import project_sphere
 from fbcpr.toy import pointmass as pm
@@ -20,6 +21,7 @@ N_STARTS = 10          # episodes per goal / per task
 HORIZON = 100
 REWARD_SAMPLES = 20_000
 GOAL_RADIUS = 0.2      # 5% of the arena's width
+FPS = 30.0             # the toy's nominal control rate, for speeds and SPARC (the humanoid's is 30 Hz too)
 
 
 def _act(model: Any, obs: np.ndarray, z: torch.Tensor | None, rng: np.random.Generator) -> np.ndarray:
@@ -88,6 +90,22 @@ def imitation(model: Any, rng: np.random.Generator, seq_length: int = 8) -> dict
     all_err = np.concatenate(list(errs.values()))
     return {"track_error": float(all_err.mean()), "track_within_0.1": float((all_err < 0.1).mean()),
             **{f"track_error/{k}": float(v.mean()) for k, v in errs.items()}}
+
+
+def imitation_metrics(model: Any, demo: str, rng: np.random.Generator, fps: float = FPS) -> dict[str, float]:
+    """NEAR's imitation metrics for a policy that acts without a prompt (model=None: random), from the demo's first
+    state for its length: average DTW position error to the demo, and SPARC of the speed next to the demo's."""
+    ref = pm.demo_paths()[demo]
+    env = pm.PointMassVectorEnv(N_STARTS, max_episode_steps=len(ref) + 1)
+    obs, _ = env.reset(options={"qpos": np.repeat(ref[:1], N_STARTS, 0), "qvel": np.zeros((N_STARTS, pm.NV))})
+    traj = [obs]
+    for _ in range(len(ref) - 1):
+        obs, *_ = env.step(_act(model, obs, None, rng))
+        traj.append(obs)
+    paths = np.stack(traj, 1)                                               # (N_STARTS, T, 2)
+    return {"dtw": float(np.mean([dtw_pose_error(p, ref) for p in paths])),
+            "sparc": float(np.mean([sparc(speed_profile(p, fps), fps) for p in paths])),
+            "sparc_expert": sparc(speed_profile(ref, fps), fps)}
 
 
 def evaluate(model: Any, seed: int = 0, seq_length: int = 8) -> dict[str, float]:
