@@ -1,5 +1,6 @@
 """Evaluation metrics of the FB-CPR paper (App. C.3.2 and C.3.3), one implementation each.
 
+The imitation metrics of NEAR (average DTW pose error, SPARC) follow the tracking metrics.
 All distances use d_smpl: the Euclidean distance between the pose parts (observation[..., :214]: root height,
 body positions and orientations; velocities ignored). Inputs may be full observations (..., 358) or pose
 parts (..., 214).
@@ -9,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import ot
 
-from humanoid_env.observation import OBS_DIM, POSE
+from humanoid_env.observation import BODY_LINVEL, BODY_POS, OBS_DIM, POSE
 
 POSE_DIM = POSE.stop - POSE.start
 GOAL_BETA = 2.0      # goal reached when d_smpl <= beta
@@ -105,3 +106,16 @@ def sparc(speed: np.ndarray, fps: float, pad_level: int = 4, cutoff_hz: float = 
     if len(freq) < 2:
         return 0.0
     return float(-np.sum(np.hypot(np.diff(freq) / (freq[-1] - freq[0]), np.diff(mag))))
+
+
+def imitation_scores(agent: np.ndarray, reference: np.ndarray, fps: float = 30.0) -> dict[str, float]:
+    """NEAR's imitation metrics of two humanoid observation trajectories (T, 358): DTW pose error over the
+    root-relative body positions (the 2-norm of all 23 stacked, in metres, as NEAR), and SPARC of the root's
+    speed (body 0's linear velocity) for the agent and for the reference."""
+    a, r = np.asarray(agent, dtype=np.float64), np.asarray(reference, dtype=np.float64)
+    if a.ndim != 2 or r.ndim != 2 or a.shape[1] != OBS_DIM or r.shape[1] != OBS_DIM:
+        raise ValueError(f"imitation_scores: expected (T, {OBS_DIM}) observations, got {a.shape} and {r.shape}")
+    root_speed = slice(BODY_LINVEL.start, BODY_LINVEL.start + 3)
+    return {"dtw": dtw_pose_error(a[:, BODY_POS], r[:, BODY_POS]),
+            "sparc": sparc(np.linalg.norm(a[:, root_speed], axis=-1), fps),
+            "sparc_expert": sparc(np.linalg.norm(r[:, root_speed], axis=-1), fps)}

@@ -9,6 +9,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+#: Per-clip imitation metrics (`fbcpr.evaluation.metrics.imitation_scores`) averaged into the tracking summary.
+IMITATION_KEYS = ("dtw", "sparc", "sparc_expert")
+
 
 def summarize(results: dict[str, Any]) -> dict[str, Any]:
     """Suite-level means, and reward returns averaged per Table 19 category."""
@@ -28,6 +31,8 @@ def summarize(results: dict[str, Any]) -> dict[str, Any]:
         t = results["tracking"].values()
         summary["tracking"] = {"success": float(np.mean([x["success"] for x in t])),
                                "emd": float(np.mean([x["emd"] for x in t]))}
+        summary["tracking"].update({k: float(np.mean([x[k] for x in t])) for k in IMITATION_KEYS
+                                    if all(k in x for x in t)})
     return summary
 
 
@@ -79,6 +84,9 @@ def print_report(results: dict[str, Any], console: Console | None = None) -> Non
         s = results["summary"]["tracking"]
         table.add_row("all", "", f"{s['success']:.2f}", f"{s['emd']:.3f}")
         con.print(table)
+        if "dtw" in s:
+            con.print(f"imitation: DTW pose error {s['dtw']:.3f} m, SPARC {s['sparc']:.2f} "
+                      f"(clips: {s['sparc_expert']:.2f})")
 
 
 def _bars(path: Path, labels: list[str], values: list[float], ylabel: str, title: str,
