@@ -78,3 +78,26 @@ def test_every_registered_method_resolves():
     for method in METHODS.values():
         assert method.agent_config().__dataclass_fields__["batch_size"]
         assert hasattr(method.model(fb_cfg().model), "act")
+
+
+def test_fb_cpr_discriminator_is_an_imitation_reward():
+    from fbcpr.fb_cpr.imitation import DiscriminatorReward
+    from fbcpr.protocols import ImitationReward
+
+    cfg = fb_cfg(agent={"batch_size": 32, "relabel_prob": 0.0})           # the agent scores the batch z as given
+    agent = FBCPRAgent(cfg.model, cfg.agent, seed=0)
+    g = torch.Generator().manual_seed(0)
+    obs, next_obs, z = torch.randn(32, 6, generator=g), torch.randn(32, 6, generator=g), agent.model.sample_z(32, g)
+    windows = torch.randn(4, 8, 6, generator=g) + 2.0                       # demonstrations live elsewhere
+    agent.model.obs_normalizer.update(torch.cat([obs, windows.reshape(-1, 6)]))
+    imitation = DiscriminatorReward(agent.model, lr=1e-3, grad_penalty=1.0)
+    assert isinstance(imitation, ImitationReward)
+    out = agent._losses(obs, torch.zeros(32, 3), next_obs, z, torch.zeros(32), windows)
+    torch.testing.assert_close(imitation.reward(obs, next_obs, z).mean(), out["reward"])  # the agent's reward
+    batch = {"obs": obs, "z": z}
+    first = imitation.fit(windows, batch)
+    for _ in range(30):
+        last = imitation.fit(windows, batch)
+    assert last["disc_expert"] - last["disc_online"] > first["disc_expert"] - first["disc_online"] + 0.2
+    with pytest.raises(ValueError, match="needs the latent z"):
+        imitation.reward(obs, next_obs)

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor, nn
 
 from fbcpr.fb_cpr import losses
+from fbcpr.fb_cpr.imitation import discriminator_terms, encode_windows
 from fbcpr.config import AgentConfig, ModelConfig
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.networks import project_sphere
@@ -105,11 +106,9 @@ class FBCPRAgent:
         keep = torch.rand(z.shape[0], generator=self.generator, device=self.device) >= self.cfg.relabel_prob
         return torch.where(keep[:, None], z, fresh)
 
-    @torch.no_grad()
     def encode_windows(self, windows_n: Tensor) -> Tensor:
-        """ER_FB: mean of B over each (normalized) window, projected to the sphere. (w, L, obs) -> (w, d)."""
-        w, L, o = windows_n.shape
-        return project_sphere(self.model.backward_map(windows_n.reshape(w * L, o)).view(w, L, -1).mean(1))
+        """ER_FB of normalized windows (w, L, obs) -> (w, d) (`fbcpr.fb_cpr.imitation.encode_windows`)."""
+        return encode_windows(self.model, windows_n)
 
     # ------------------------------------------------------------------------------------- update
     def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, float]:
@@ -138,20 +137,15 @@ class FBCPRAgent:
     def _losses(self, obs: Tensor, action: Tensor, next_obs: Tensor, z_buf: Tensor, terminated: Tensor,
                 expert: Tensor) -> dict[str, Tensor]:
         cfg, model, tg = self.cfg, self.model, self.targets
-        n, (w, L, o) = obs.shape[0], expert.shape
+        w, L = expert.shape[:2]
         obs_n, next_n = model.normalize(obs), model.normalize(next_obs)
         expert_n = model.normalize(expert)
         discount = cfg.discount * (1.0 - terminated)
 
         # discriminator: expert (s, ER_FB(window)) vs online (s, z) in one forward, plus WGAN-GP
         z_exp = self.encode_windows(expert_n)
-        z_exp_states = z_exp.repeat_interleave(L, 0)
-        s_exp = expert_n.reshape(w * L, o)
-        logits = model.discriminator.logits(torch.cat([s_exp, obs_n]), torch.cat([z_exp_states, z_buf]))
-        disc = losses.discriminator_loss(logits[: w * L], logits[w * L:])
-        k = min(w * L, n)
-        mix = torch.rand(k, generator=self.generator, device=self.device)
-        gp = self._gradient_penalty(model.discriminator, s_exp[:k], z_exp_states[:k], obs_n[:k], z_buf[:k], mix)
+        logits, disc, gp = discriminator_terms(model.discriminator, expert_n, z_exp, obs_n, z_buf, self.generator,
+                                               self._gradient_penalty)
 
         # B(s') once: FB loss, ortho loss, Sigma_B, online-goal relabeling
         B_next = model.backward_map(next_n)
