@@ -15,9 +15,9 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
+from fbcpr.config import AgentConfig, Config, ModelConfig
 from fbcpr.fb_cpr import losses
 from fbcpr.fb_cpr.imitation import discriminator_terms, encode_windows
-from fbcpr.config import AgentConfig, ModelConfig
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.networks import project_sphere
 from fbcpr.optim_state import load_optimizer_state, optimizer_state

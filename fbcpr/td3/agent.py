@@ -8,7 +8,7 @@ FB-CPR (`fbcpr.ensemble_td`); exploration and target smoothing the same clipped 
 from __future__ import annotations
 
 import copy
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -16,14 +16,12 @@ from torch import Tensor
 
 from fbcpr.config import Config, ModelConfig
 from fbcpr.ensemble_td import pessimistic, td_loss
+from fbcpr.envs import TaskReward
 from fbcpr.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.precision import resolve_bf16
 from fbcpr.protocols import ImitationReward
 from fbcpr.td3.config import TD3Config
 from fbcpr.td3.model import TD3Model
-
-#: Registry reward of the stored next state: (next_obs, qpos, qvel) numpy batches -> (N,).
-TaskReward = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
 class TD3Agent:
