@@ -20,7 +20,7 @@ import torch
 
 from fbcpr.bfm import BFM
 from fbcpr.config import config_from_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 
 TASKS = ["move-ego-0-2", "crouch-0", "raisearms-h-l", "sitonground", "move-ego-0-2*raisearms-h-h"]
 

@@ -16,8 +16,8 @@ import time
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from fbcpr import losses
-from fbcpr.agent import FBCPRAgent
+from fbcpr.fb_cpr import losses
+from fbcpr.fb_cpr.agent import FBCPRAgent
 from fbcpr.config import config_from_dict
 
 SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}

@@ -30,8 +30,9 @@ def _load_motions(folder: Optional[Path]):
 @cli_errors
 def eval_command(
     ctx: typer.Context,
-    ckpt: str = typer.Argument(..., help="Checkpoint dir or hub id (loaded with fbcpr.BFM.load), or the floor "
-                                         "baselines 'random' or 'zero'."),
+    ckpt: str = typer.Argument(..., help="Checkpoint dir or hub id (FB-CPR is prompted zero-shot; a single-task "
+                                         "agent runs its own task, with imitation metrics when it imitates), or "
+                                         "the floor baselines 'random' or 'zero'."),
     suite: Suite = typer.Option(Suite.all, "--suite", help="Which suite to run."),
     tasks: Optional[list[str]] = typer.Option(None, "--tasks", help="Restrict to these names (reward tasks such as "
                                               "move-ego-0-2, goal poses such as t_pose, clip names); repeatable, "

@@ -29,7 +29,7 @@ from fbcpr.checkpoint import (
     save_checkpoint,
 )
 from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.prompt import Prompt
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING
 
@@ -79,12 +79,15 @@ class BFM:
         Hugging Face repo id (downloaded once into the HF cache; HF_HUB_OFFLINE=1 uses the cache only)."""
         path = resolve_checkpoint(path_or_repo_id, revision=revision, cache_dir=cache_dir)
         ckpt = load_checkpoint(path, device=device)
+        if ckpt.algorithm != "fb_cpr":
+            raise CheckpointError(f"{path}: holds a {ckpt.algorithm} agent, not a prompt-able FB-CPR model "
+                                  "(evaluate it with `fbcpr eval`, which runs any agent)")
         return cls(ckpt.model, ckpt.config, source=str(path_or_repo_id), checkpoint=ckpt)
 
     @classmethod
     def pretrained(cls, device: str | torch.device = "cpu") -> "BFM":
         """The model that ships inside the package (`fbcpr/pretrained/`, its model card is the README there)."""
-        return cls.load(PRETRAINED_DIR, device=device)
+        return cls.load(pretrained_dir(), device=device)
 
     # ---------------------------------------------------------------------------------- properties
     @property
@@ -285,14 +288,19 @@ def _all_finite(x: torch.Tensor) -> bool:
     return bool(torch.isfinite(x.sum(dtype=torch.float64)))
 
 
+def pretrained_dir() -> Path:
+    """The shipped checkpoint's folder, or a CheckpointError when an installation lacks it."""
+    if not (PRETRAINED_DIR / MANIFEST_FILE).is_file():
+        raise CheckpointError(f"{PRETRAINED_DIR}: the pretrained model is missing from this installation")
+    return PRETRAINED_DIR
+
+
 def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: str | Path | None = None) -> Path:
     """A local checkpoint directory as is, `pretrained` (the shipped model, unless a local folder has that name),
     or a Hub repo id downloaded into (or found in) the HF cache."""
     path = Path(src).expanduser()
     if str(src) == PRETRAINED_NAME and not path.exists():
-        if not (PRETRAINED_DIR / MANIFEST_FILE).is_file():
-            raise CheckpointError(f"{PRETRAINED_DIR}: the pretrained model is missing from this installation")
-        return PRETRAINED_DIR
+        return pretrained_dir()
     if path.exists():
         if not path.is_dir():
             raise CheckpointError(f"{path}: not a checkpoint directory (expected a folder with {MODEL_FILE})")

@@ -3,14 +3,15 @@
 Layout of a checkpoint directory:
     model.safetensors           model weights and normalizer statistics
     config.yaml                 the run config (or just the `model:` section)
-    manifest.json               format version, library versions, sha256 and tensor shapes of every file
+    manifest.json               format version, method (`algorithm`), library versions, sha256 and shapes of every file
     trainer_state.safetensors   optional: target nets, optimizer moments; JSON scalars/counters/RNG in its header
     reward_buffer.safetensors   optional: next_obs, qpos, qvel subsample for reward prompts
     replay_buffer.safetensors   optional: the whole replay buffer (exact resume)
 
 `save_checkpoint` writes everything into a temporary sibling directory and moves it into place with
 renames, so an interrupted save leaves the previous checkpoint readable. `load_checkpoint` never
-unpickles: it only reads safetensors, JSON and `yaml.safe_load`.
+unpickles: it only reads safetensors, JSON and `yaml.safe_load`. The method (`fbcpr.methods`) is recorded in
+config.yaml and the manifest and picks the model class on load; a checkpoint that records none is FB-CPR.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ from safetensors.torch import load_file, save_file
 
 import fbcpr
 from fbcpr.config import Config, ConfigError, ModelConfig, config_from_dict, config_to_dict, model_config_from_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.methods import DEFAULT_ALGORITHM, get_method
 from humanoid_env.actions import LEGACY_ACTION_MAPPING
 
 FORMAT = "fbcpr-checkpoint"
@@ -49,12 +50,16 @@ class CheckpointError(RuntimeError):
 
 @dataclass
 class Checkpoint:
-    """A loaded checkpoint: the model, its config, and lazy access to the optional files."""
+    """A loaded checkpoint: the model (of the method it records), its config, and lazy access to the optional files."""
 
     path: Path
-    model: FBCPRModel
+    model: torch.nn.Module
     config: Config | ModelConfig
     manifest: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def algorithm(self) -> str:
+        return self.config.algorithm if isinstance(self.config, Config) else DEFAULT_ALGORITHM
 
     @property
     def model_config(self) -> ModelConfig:
@@ -134,7 +139,7 @@ def _verify(path: Path, manifest: dict[str, Any]) -> None:
 
 def save_checkpoint(
     path: str | Path,
-    model: FBCPRModel,
+    model: torch.nn.Module,
     config: Config | ModelConfig,
     trainer_state: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
     reward_buffer: dict[str, np.ndarray | torch.Tensor] | None = None,
@@ -173,10 +178,11 @@ def save_checkpoint(
         manifest = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
+            "algorithm": config.algorithm if isinstance(config, Config) else DEFAULT_ALGORITHM,
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "versions": {"fbcpr": fbcpr.__version__, "torch": torch.__version__, "numpy": np.__version__,
                          "safetensors": getattr(safetensors, "__version__", "?")},
-            "model": {"obs_dim": model.cfg.obs_dim, "action_dim": model.cfg.action_dim, "z_dim": model.cfg.z_dim},
+            "model": {"obs_dim": model.cfg.obs_dim, "action_dim": model.cfg.action_dim, "z_dim": model.z_dim},
             "files": files,
             "tensors": shapes,
         }
@@ -241,8 +247,12 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
     except (yaml.YAMLError, ConfigError, TypeError, AttributeError) as e:
         raise CheckpointError(f"{path / CONFIG_FILE}: invalid config ({e})") from None
     mcfg = config.model if isinstance(config, Config) else config
+    algorithm = config.algorithm if isinstance(config, Config) else DEFAULT_ALGORITHM
+    if manifest.get("algorithm", DEFAULT_ALGORITHM) != algorithm:
+        raise CheckpointError(f"{path / MANIFEST_FILE}: algorithm {manifest.get('algorithm')!r} disagrees with "
+                              f"{algorithm!r} of {CONFIG_FILE}")
     try:
-        model = FBCPRModel(mcfg)
+        model = get_method(algorithm).model(mcfg)
     except ValueError as e:
         raise CheckpointError(f"{path / CONFIG_FILE}: {e}") from None
     tensors, _ = _read_tensors(path, MODEL_FILE, manifest)

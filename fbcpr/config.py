@@ -100,7 +100,7 @@ class EnvConfig:
     """Which environment and demonstrations; the trainer only sees what `fbcpr.envs.make_env` builds."""
 
     name: str = _f("humanoid", _check(lambda v: v in ("humanoid", "toy"), "must be 'humanoid' or 'toy'"))
-    motions: str = _f("synthetic")
+    motions: str = _f("synthetic")  # humanoid: a folder of clips; toy: "synthetic" (all demos) or demo names
     fall_prob: float = _f(0.2, PROB)
     max_episode_steps: int = _f(300, POSITIVE)
     action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
@@ -134,10 +134,13 @@ class TrainConfig:
 
 @dataclass
 class Config:
-    """A whole run: model sizes, algorithm, environment and training loop."""
+    """A whole run: the method (`algorithm`), model sizes, its hyperparameters, environment and training loop.
 
+    `agent` holds the named method's hyperparameters (`fbcpr.methods`): `AgentConfig` for FB-CPR."""
+
+    algorithm: str = _f("fb_cpr")
     model: ModelConfig = field(default_factory=ModelConfig)
-    agent: AgentConfig = field(default_factory=AgentConfig)
+    agent: Any = field(default_factory=AgentConfig)
     env: EnvConfig = field(default_factory=EnvConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
@@ -181,7 +184,7 @@ def _type_ok(value: Any, tp: Any) -> tuple[bool, Any]:
     return False, value
 
 
-def _build(cls: type, data: Any, prefix: str) -> Any:
+def _build(cls: type, data: Any, prefix: str, sections: dict[str, type] | None = None) -> Any:
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -201,7 +204,7 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
     kwargs = {}
     for name, value in data.items():
         key = f"{prefix}.{name}" if prefix else name
-        tp = hints[name]
+        tp = (sections or {}).get(name, hints[name])
         if dataclasses.is_dataclass(tp):
             kwargs[name] = _build(tp, value, key)
             continue
@@ -221,8 +224,13 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
 
 
 def config_from_dict(data: dict[str, Any]) -> Config:
-    """Build and validate a Config from plain data (as loaded from YAML)."""
-    cfg = _build(Config, data, "")
+    """Build and validate a Config from plain data (as loaded from YAML); `algorithm` picks the `agent:` schema."""
+    from fbcpr.methods import get_method
+
+    algorithm = data.get("algorithm", Config.algorithm) if isinstance(data, dict) else Config.algorithm
+    if not isinstance(algorithm, str):
+        raise ConfigError(f"algorithm: expected str, got {algorithm!r}")
+    cfg = _build(Config, data, "", sections={"agent": get_method(algorithm).agent_config()})
     if cfg.agent.batch_size % cfg.agent.seq_length:
         raise ConfigError(f"agent.batch_size: must be a multiple of agent.seq_length ({cfg.agent.seq_length}), "
                           f"got {cfg.agent.batch_size}")
@@ -234,8 +242,9 @@ def model_config_from_dict(data: dict[str, Any]) -> ModelConfig:
     return _build(ModelConfig, data, "model")
 
 
-#: Config keys that hold a file or folder path ("synthetic" names the built-in clips, not a path).
-PATH_KEYS = (("env", "motions"),)
+#: Config keys that hold a file or folder path, for the envs where they do ("synthetic" names the built-in clips,
+#: and the toy's env.motions names demonstrations, not paths).
+PATH_KEYS = (("env", "motions", "humanoid"),)
 
 
 def load_config(path: str | Path) -> Config:
@@ -253,10 +262,10 @@ def load_config(path: str | Path) -> Config:
     except yaml.YAMLError as e:
         raise ConfigError(f"{path}: invalid YAML ({e})") from None
     cfg = config_from_dict(data or {})
-    for section, key in PATH_KEYS:
+    for section, key, env in PATH_KEYS:
         part = getattr(cfg, section)
         value = getattr(part, key)
-        if value != "synthetic" and not Path(value).expanduser().is_absolute():
+        if cfg.env.name == env and value != "synthetic" and not Path(value).expanduser().is_absolute():
             setattr(part, key, str((path.parent / value).resolve()))
     return cfg
 

@@ -13,9 +13,17 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from fbcpr.config import EnvConfig
+from fbcpr.config import ConfigError, EnvConfig
 from fbcpr.latents import tracking_sums
 from fbcpr.networks import project_sphere
+
+
+#: A registry reward on next states: (next_obs (N, obs_dim), qpos (N, nq), qvel (N, nv)) -> (N,).
+TaskReward = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+def _task_error(err: Exception) -> ConfigError:
+    return ConfigError(f"agent.reward.task: {err.args[0]}")
 
 
 @dataclass
@@ -31,6 +39,7 @@ class EnvBundle:
     clip_start: Callable[[int], tuple[np.ndarray, np.ndarray]]  # clip index -> (qpos, qvel) of frame 0
     emd: Callable[[np.ndarray, np.ndarray], float]        # tracking EMD between two (T, obs_dim) trajectories
     success: Callable[[np.ndarray, np.ndarray], bool]     # tracking success (time-aligned)
+    task_reward: Callable[[str], TaskReward]              # registry task name -> reward of (next_obs, qpos, qvel)
 
 
 def make_env(cfg: EnvConfig, num_envs: int, seed: int) -> EnvBundle:
@@ -43,7 +52,20 @@ def make_env(cfg: EnvConfig, num_envs: int, seed: int) -> EnvBundle:
 def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
     from fbcpr.toy import pointmass as pm
 
-    lib = pm.DemoLibrary(pm.demo_paths())
+    def task_reward(name: str) -> TaskReward:
+        try:
+            fn = pm.get_task(name)
+        except KeyError as err:
+            raise _task_error(err) from None
+        return lambda next_obs, qpos, qvel: fn(next_obs)
+
+    demos = pm.demo_paths()
+    names = list(demos) if cfg.motions == "synthetic" else [n.strip() for n in cfg.motions.split(",")]
+    unknown = [n for n in names if n not in demos]
+    if unknown:
+        raise ConfigError(f"env.motions: unknown toy demonstration {unknown[0]!r}; give 'synthetic' (all) or "
+                          f"comma-separated names of {sorted(demos)}")
+    lib = pm.DemoLibrary({n: demos[n] for n in names})
     init = pm.MixtureInit(cfg.fall_prob, lib)
 
     def pos_err(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -58,6 +80,7 @@ def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
         # mean position error in units of 0.1, so the paper's EMD bins [0.5, 5] span 0.05-0.5 of the arena
         emd=lambda a, b: float(10.0 * pos_err(a, b).mean()),
         success=lambda a, b: bool((pos_err(a, b) <= 0.1).all()),
+        task_reward=task_reward,
     )
 
 
@@ -78,6 +101,15 @@ def _humanoid(cfg: EnvConfig, num_envs: int) -> EnvBundle:
         lib = MotionLibrary.load(path)
     from fbcpr.evaluation.metrics import emd, tracking_success
 
+    def task_reward(name: str) -> TaskReward:
+        from humanoid_env.tasks import get_reward  # lazy: the task registry needs dm_control, FB-CPR training does not
+
+        try:
+            fn = get_reward(name)
+        except ValueError as err:
+            raise _task_error(err) from None
+        return lambda next_obs, qpos, qvel: fn(next_obs, None, qpos, qvel)
+
     return EnvBundle(
         env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib), max_episode_steps=cfg.max_episode_steps,
                               action_mapping=cfg.action_mapping),
@@ -85,7 +117,7 @@ def _humanoid(cfg: EnvConfig, num_envs: int) -> EnvBundle:
         make_eval_env=lambda n, steps: VectorHumanoidEnv(n, max_episode_steps=steps, action_mapping=cfg.action_mapping),
         clip_obs=lambda i: lib.clips[i].obs,
         clip_start=lambda i: (lib.clips[i].qpos[0], lib.clips[i].qvel[0]),
-        emd=emd, success=tracking_success,
+        emd=emd, success=tracking_success, task_reward=task_reward,
     )
 
 

@@ -169,6 +169,15 @@ class Discriminator(nn.Module):
         return torch.sigmoid(self.logits(obs, z))
 
 
+def noisy_action(mean: Tensor, std: float, clip: float, generator: torch.Generator | None = None) -> Tensor:
+    """mean + N(0, std^2) noise clipped to [-clip, clip], clamped to [-1, 1] with a straight-through gradient.
+
+    TD3's exploration and target-policy smoothing, used by every actor (FB-CPR's pi(s, z), TD3's pi(s))."""
+    noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+    a = mean + (noise * std).clamp(-clip, clip)
+    return a + (a.clamp(-1.0, 1.0) - a).detach()
+
+
 def project_sphere(z: Tensor) -> Tensor:
     """Project onto the sphere of radius sqrt(d), the support of every z the policy sees."""
     return math.sqrt(z.shape[-1]) * F.normalize(z, dim=-1)

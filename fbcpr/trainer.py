@@ -1,8 +1,9 @@
-"""Online FB-CPR training loop (Algorithm 1 with the protocol of App. C.5.1).
+"""Online training loop of every method (Algorithm 1 with the protocol of App. C.5.1 for FB-CPR).
 
 Each iteration collects `rollout_steps` transitions from `num_envs` parallel envs (random actions during
 warm-up, then the policy with z ~ nu resampled every `z_update_every` steps), then runs
-`updates_per_rollout` gradient steps. Every `priority_every` env steps the policy tracks the clips and the
+`updates_per_rollout` gradient steps. The agent is the config's `algorithm` (`fbcpr.methods`), driven
+through `fbcpr.protocols.OnlineAgent`; z is its rollout latent (empty for single-task agents). Every `priority_every` env steps the policy tracks the clips and the
 motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the
 model, the exact learner state (target nets, optimisers, normaliser, counters, RNG states, env states and
 optionally the replay buffer) and a reward-inference subsample of the buffer. SIGINT/SIGTERM ends the
@@ -34,12 +35,13 @@ from rich.progress import BarColumn, Progress, ProgressColumn, Task, TextColumn,
 from rich.table import Column
 from rich.text import Text
 
-from fbcpr.agent import FBCPRAgent
 from fbcpr.buffer import ReplayBuffer, transition_specs
 from fbcpr.checkpoint import CheckpointError, load_checkpoint, load_state_strict, read_trainer_meta, save_checkpoint
 from fbcpr.config import Config, ConfigError
 from fbcpr.envs import EnvBundle, make_env, tracking_scores
 from fbcpr.evaluation.metrics import EMDUnavailable
+from fbcpr.methods import get_method
+from fbcpr.protocols import OnlineAgent
 
 LIVE_KEYS = ("fb_loss", "actor_loss", "critic_loss", "disc_loss", "reward")
 #: |action| beyond which a component counts as saturated (at a joint limit's side of the PD range).
@@ -70,7 +72,7 @@ class Trainer:
     """Owns env, agent, buffer and logs of one run directory (`out_dir`)."""
 
     def __init__(self, cfg: Config, out_dir: str | Path, resume: bool = False,
-                 evaluate: Callable[[FBCPRAgent], dict[str, float]] | None = None, progress: bool = True,
+                 evaluate: Callable[[OnlineAgent], dict[str, float]] | None = None, progress: bool = True,
                  init_from: str | Path | None = None) -> None:
         self.out = Path(out_dir)
         self.progress_enabled = progress
@@ -92,12 +94,12 @@ class Trainer:
         random.seed(tc.seed)
         np.random.seed(tc.seed)
         self.rng = np.random.default_rng(tc.seed)
-        self.agent = FBCPRAgent(cfg.model, cfg.agent, self.device, tc.seed)
+        self.agent = get_method(cfg.algorithm).agent(cfg, b, self.device, tc.seed)
         self.warm_started = init_from is not None and not resume
         if self.warm_started:
             self._warm_start(init_from)
         self.out.mkdir(parents=True, exist_ok=True)
-        specs = transition_specs(b.obs_dim, b.action_dim, cfg.model.z_dim, b.nq, b.nv)
+        specs = transition_specs(b.obs_dim, b.action_dim, self.agent.z_dim, b.nq, b.nv)
         big = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) > tc.buffer_memmap_mb * 2**20
         self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if big else None)
 
@@ -127,16 +129,11 @@ class Trainer:
 
     # --------------------------------------------------------------------------------- z for rollouts
     def _sample_rollout_z(self, n: int) -> torch.Tensor:
-        """n draws from nu: B of online states (from the buffer), ER_FB of demo windows, uniform."""
-        agent, L = self.agent, self.cfg.agent.seq_length
-        online_b = expert_z = None
-        with torch.no_grad():
-            if len(self.buffer) > 0:
-                s = self.buffer.sample(self.rng, n, fields=("next_obs",))["next_obs"].to(self.device)
-                online_b = agent.model.backward_map(agent.model.normalize(s))
-            win = torch.as_tensor(self.bundle.library.sample_windows(self.rng, n, L), device=self.device)
-            expert_z = agent.encode_windows(agent.model.normalize(win))
-            return agent.sample_z(n, online_b, expert_z)
+        """n rollout latents from the agent (FB-CPR's nu) given online states from the buffer and demo windows."""
+        L = self.cfg.agent.seq_length
+        online = self.buffer.sample(self.rng, n, fields=("next_obs",))["next_obs"] if len(self.buffer) > 0 else None
+        windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, n, L))
+        return self.agent.rollout_z(n, online, windows)
 
     # --------------------------------------------------------------------------------- main loop
     def run(self, max_env_steps: int | None = None, deadline: float | None = None) -> dict[str, Any]:
@@ -193,8 +190,7 @@ class Trainer:
         if self.env_steps < tc.warmup_steps and not self.warm_started:
             action = self.rng.uniform(-1.0, 1.0, size=(n, self.bundle.action_dim)).astype(np.float32)
         else:
-            action = agent.model.act(torch.as_tensor(self.obs, device=self.device), self.z, mean=False,
-                                     generator=agent.generator).cpu().numpy()
+            action = agent.act(torch.as_tensor(self.obs, device=self.device), self.z).cpu().numpy()
             mag = np.abs(action)
             self._action_stats += (mag.sum(), (mag > SATURATED).sum(), mag.size)
         next_obs, _, terminated, truncated, info = env.step(action)
@@ -209,7 +205,7 @@ class Trainer:
 
     def _update(self) -> None:
         a = self.cfg.agent
-        batch = self.buffer.sample(self.rng, a.batch_size)
+        batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields)
         windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, a.batch_size // a.seq_length, a.seq_length))
         self.last_metrics = self.agent.update(batch, windows)
         self.updates += 1
@@ -242,6 +238,8 @@ class Trainer:
     def evaluate(self, refresh_priorities: bool = False) -> dict[str, float]:
         """Track the clips (tracking EMD / success), optionally refresh priorities, plus the custom eval hook."""
         tc = self.cfg.train
+        if not self.agent.z_dim:  # a single-task agent has no tracking prompt: only the custom hook
+            return {f"eval/{k}": float(v) for k, v in self.custom_eval(self.agent).items()} if self.custom_eval else {}
         rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
         out: dict[str, float] = {}
         try:
@@ -375,16 +373,17 @@ class Trainer:
         targets (= the networks) and normaliser; fresh optimisers and an empty replay buffer, which the warm-up
         fills with the loaded policy's own rollouts instead of random actions."""
         from fbcpr.bfm import resolve_checkpoint
-        from fbcpr.agent import TARGETS
 
         ckpt = load_checkpoint(resolve_checkpoint(src), self.device)
+        if ckpt.algorithm != self.cfg.algorithm:
+            raise ConfigError(f"algorithm: {self.cfg.algorithm!r} differs from {ckpt.algorithm!r} of the --init-from "
+                              f"checkpoint {ckpt.path}")
         theirs = ckpt.config.env.action_mapping if isinstance(ckpt.config, Config) else None
         if theirs is not None and theirs != self.cfg.env.action_mapping:
             raise ConfigError(f"env.action_mapping: {self.cfg.env.action_mapping!r} differs from {theirs!r} of the "
                               f"--init-from checkpoint {ckpt.path}")
         load_state_strict(self.agent.model, ckpt.model.state_dict(), f"{ckpt.path / 'model.safetensors'} (--init-from)")
-        for k in TARGETS:
-            self.agent.targets[k].load_state_dict(getattr(self.agent.model, k).state_dict())
+        self.agent.sync_targets()
 
     def _resume(self) -> None:
         root = self.out / "checkpoints"

@@ -15,7 +15,7 @@ import yaml
 from fbcpr import BFM
 from fbcpr.checkpoint import CheckpointError, save_checkpoint
 from fbcpr.config import config_from_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 
 torch.set_num_threads(1)
 SHA = "0123456789abcdef0123456789abcdef01234567"

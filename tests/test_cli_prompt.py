@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 from fbcpr.checkpoint import save_checkpoint
 from fbcpr.cli.app import app
 from fbcpr.config import config_from_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 from humanoid_env.model import NV, load_model
 from humanoid_env.observation import observe
 from humanoid_env.render import renderer_available

@@ -24,7 +24,7 @@ def workdir(tmp_path_factory):
     the documented reward prompts have states they reward) and data/clips (the synthetic clips)."""
     from fbcpr.checkpoint import save_checkpoint
     from fbcpr.config import config_from_dict
-    from fbcpr.model import FBCPRModel
+    from fbcpr.fb_cpr.model import FBCPRModel
     from humanoid_env.tasks import GOALS, goal_obs, goal_qpos
     from motions.clip import save_clip
     from motions.synthetic import default_clips

@@ -142,7 +142,7 @@ def test_cli_eval_on_a_tiny_checkpoint(tmp_path):
     from fbcpr.checkpoint import save_checkpoint
     from fbcpr.cli import eval_cmd
     from fbcpr.config import config_from_dict
-    from fbcpr.model import FBCPRModel
+    from fbcpr.fb_cpr.model import FBCPRModel
 
     torch.manual_seed(0)
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
@@ -221,3 +221,27 @@ def test_eval_says_what_it_will_simulate(library):
     text = plan(chosen, ("reward", "goal", "tracking"), 10, 300, library)
     assert text == ("evaluating 2 reward tasks x 10 episodes x 300 steps, 1 goal poses x 10 episodes x 300 steps, "
                     "1 clips to track: 9,029 env steps")
+def test_single_task_checkpoints_are_evaluated_on_their_own_task(tmp_path, library):
+    """A TD3 checkpoint runs its reward task only; an imitation-trained one tracks the clips with NEAR's metrics."""
+    from fbcpr.checkpoint import save_checkpoint
+    from fbcpr.config import config_from_dict
+    from fbcpr.evaluation.agents import SingleTaskAgent
+    from fbcpr.td3.model import TD3Model
+
+    def checkpoint(name, reward):
+        cfg = config_from_dict({"algorithm": "td3", "agent": {"reward": reward},
+                                "model": {"hidden_dim": 16, "hidden_layers": 1, "obs_dim": 358, "action_dim": 69}})
+        return str(save_checkpoint(tmp_path / name, TD3Model(cfg.model), cfg))
+
+    agent = make_agent(checkpoint("task", {"task": "move-ego-0-0"}))
+    assert isinstance(agent, SingleTaskAgent) and isinstance(agent, Agent) and agent.task == "move-ego-0-0"
+    assert agent.act(np.zeros((2, 358), np.float32), agent.reward_z("move-ego-0-0")).shape == (2, 69)
+    res = evaluate(agent, episodes=1, steps=3, motions=library, show_progress=False)
+    assert list(res["reward"]) == ["move-ego-0-0"] and "goal" not in res and "tracking" not in res
+
+    agent = make_agent(checkpoint("amp", {"imitation": "amp"}))
+    res = evaluate(agent, episodes=1, steps=3, motions=library, show_progress=False)
+    assert "reward" not in res and set(res["tracking"]) == {"stand", "tpose"}
+    for clip in res["tracking"].values():
+        assert clip["dtw"] >= 0 and clip["sparc"] <= 0 and clip["sparc_expert"] <= 0
+    assert res["summary"]["tracking"]["dtw"] == np.mean([c["dtw"] for c in res["tracking"].values()])

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from fbcpr.agent import TARGETS, FBCPRAgent
+from fbcpr.fb_cpr.agent import TARGETS, FBCPRAgent
 from fbcpr.config import config_from_dict
 
 torch.set_num_threads(1)

@@ -10,7 +10,7 @@ import torch
 import fbcpr.checkpoint as ckpt_mod
 from fbcpr.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from fbcpr.config import config_from_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 
 torch.set_num_threads(1)
 

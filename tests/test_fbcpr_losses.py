@@ -3,7 +3,7 @@ import math
 
 import torch
 
-from fbcpr import losses
+from fbcpr.fb_cpr import losses
 from fbcpr.networks import Discriminator
 
 torch.set_num_threads(1)

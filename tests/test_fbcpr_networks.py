@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 
 from fbcpr.config import config_from_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.networks import EnsembleLinear, ZConditionedNet
 from fbcpr.normalizer import RunningNormalizer
 

@@ -9,7 +9,7 @@ import torch
 from fbcpr import BFM
 from fbcpr.checkpoint import save_checkpoint
 from fbcpr.config import config_from_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 
 spec = importlib.util.spec_from_file_location("pack", Path(__file__).parents[1] / "benchmarks" / "gpu_lease" / "pack.py")
 pack = importlib.util.module_from_spec(spec)

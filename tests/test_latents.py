@@ -9,7 +9,7 @@ from fbcpr.bfm import BFM
 from fbcpr.config import config_from_dict
 from fbcpr.envs import tracking_latents
 from fbcpr.latents import reward_weights, tracking_sums
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 
 torch.set_num_threads(1)
 

@@ -57,3 +57,39 @@ def test_metric_inputs_are_checked():
     with pytest.raises(ValueError, match="non-empty"):
         emd(np.zeros((0, 358)), np.zeros((3, 358)))
     assert pose_part(np.ones((2, 358))).shape == (2, 214)
+
+
+def test_dtw_pose_error_forgives_time_warps_but_not_offsets():
+    from fbcpr.evaluation.metrics import dtw_pose_error
+
+    t = np.linspace(0, 2 * np.pi, 50)
+    path = np.stack([np.cos(t), np.sin(t), 0.1 * t], 1)
+    slow = np.repeat(path, 3, axis=0)                      # the same motion at a third of the speed
+    assert dtw_pose_error(slow, path) == pytest.approx(0.0, abs=1e-12)
+    assert dtw_pose_error(path + [0.0, 0.0, 0.3], path) == pytest.approx(0.3)
+    # time-aligned, a phase lag costs; the warp takes most of it back
+    lagged = np.roll(path, 5, axis=0)
+    assert dtw_pose_error(lagged, path) < np.linalg.norm(lagged - path, axis=1).mean()
+    with pytest.raises(ValueError, match="dtw_pose_error"):
+        dtw_pose_error(path[:, :2], path)
+    with pytest.raises(ValueError, match="NaN"):
+        dtw_pose_error(np.full_like(path, np.nan), path)
+
+
+def test_sparc_ranks_smooth_above_jerky_and_ignores_duration():
+    from fbcpr.evaluation.metrics import sparc, speed_profile
+
+    fps = 30.0
+
+    def bell(seconds):
+        t = np.arange(0, seconds, 1 / fps)
+        return np.exp(-0.5 * ((t - seconds / 2) / (seconds / 8)) ** 2)
+
+    smooth = bell(2.0)
+    jerky = smooth * (1 + 0.5 * np.sin(2 * np.pi * 4 * np.arange(len(smooth)) / fps))   # 4 Hz tremor
+    assert sparc(jerky, fps) < sparc(smooth, fps) < -1.0
+    assert sparc(bell(4.0), fps) == pytest.approx(sparc(bell(2.0), fps), abs=0.05)       # time-scale invariant
+    assert sparc(np.zeros(20), fps) == 0.0
+    np.testing.assert_allclose(speed_profile(np.array([[0, 0], [3, 4], [3, 4]]), fps), [150.0, 0.0])
+    with pytest.raises(ValueError, match="sparc"):
+        sparc(np.array([1.0, np.nan, 2.0]), fps)

@@ -7,7 +7,7 @@ import torch
 
 from fbcpr.bfm import BFM
 from fbcpr.config import config_from_dict
-from fbcpr.model import FBCPRModel
+from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.prompt import PromptError
 from fbcpr.timeline import Timeline, parse_timeline
 from humanoid_env.model import NV, load_model

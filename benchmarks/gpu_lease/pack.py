@@ -79,7 +79,7 @@ def unpack(files_dir: Path, dest: Path) -> Path:
     from fbcpr import BFM
     from fbcpr.checkpoint import load_state_strict, save_checkpoint
     from fbcpr.config import config_from_dict
-    from fbcpr.model import FBCPRModel
+    from fbcpr.fb_cpr.model import FBCPRModel
 
     found = {}
     for p in files_dir.glob(f"[!.]*{PART}*-of-*"):  # not the .tmp of a part cut short

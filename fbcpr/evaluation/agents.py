@@ -1,11 +1,12 @@
 """What the benchmark evaluates: any object with `act` plus the three prompt functions.
 
 Built in: the floor baselines RandomAgent and ZeroAgent (they ignore z). A loaded `fbcpr.BFM` is an Agent as
-it is. Later baselines plug in by offering the same methods.
+it is; a single-task checkpoint (TD3, on a task or an imitation reward) is wrapped as a `SingleTaskAgent`, which is
+evaluated on its own task. Later baselines plug in by offering the same methods.
 """
 from __future__ import annotations
 
-from typing import Callable, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -79,17 +80,39 @@ class ZeroAgent(_Floor):
         return np.zeros((n, NU), np.float32)
 
 
+class SingleTaskAgent(_Floor):
+    """A trained single-task policy (any non-prompt-able method of `fbcpr.methods`): it acts without z, so every
+    prompt returns an empty one; `task` and `imitation` say what it was trained on (its own evaluation)."""
+
+    def __init__(self, checkpoint: Any, name: str) -> None:
+        self.model, self.name = checkpoint.model, name
+        reward = checkpoint.config.agent.reward
+        self.task: str | None = reward.task
+        self.imitation: str | None = reward.imitation
+        self.action_mapping: str = checkpoint.config.env.action_mapping
+
+    def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> np.ndarray:
+        arr = _check_obs(obs, "act").reshape(-1, OBS_DIM)
+        return self.model.act(np.asarray(arr, dtype=np.float32), mean=mean)
+
+
 def action_mapping(agent: object) -> str:
     """The env action mapping an agent's actions are meant for (`humanoid_env.actions`); floors use the default."""
     return str(getattr(agent, "action_mapping", DEFAULT_ACTION_MAPPING))
 
 
 def make_agent(spec: str, seed: int = 0) -> Agent:
-    """`random`, `zero`, or a checkpoint path / hub id loaded with `fbcpr.BFM.load`."""
+    """`random`, `zero`, or a checkpoint path / hub id: a `fbcpr.BFM` for FB-CPR, a `SingleTaskAgent` otherwise."""
     if spec == "random":
         return RandomAgent(seed)
     if spec == "zero":
         return ZeroAgent()
     from fbcpr import BFM  # lazy: the floor baselines work without torch and the model code
+    from fbcpr.bfm import resolve_checkpoint
+    from fbcpr.checkpoint import load_checkpoint
+    from fbcpr.methods import get_method
 
-    return BFM.load(spec)
+    ckpt = load_checkpoint(resolve_checkpoint(spec))
+    if get_method(ckpt.algorithm).promptable:
+        return BFM(ckpt.model, ckpt.config, source=spec, checkpoint=ckpt)
+    return SingleTaskAgent(ckpt, spec)

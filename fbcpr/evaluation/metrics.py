@@ -1,5 +1,6 @@
 """Evaluation metrics of the FB-CPR paper (App. C.3.2 and C.3.3), one implementation each.
 
+The imitation metrics of NEAR (average DTW pose error, SPARC) follow the tracking metrics.
 All distances use d_smpl: the Euclidean distance between the pose parts (observation[..., :214]: root height,
 body positions and orientations; velocities ignored). Inputs may be full observations (..., 358) or pose
 parts (..., 214).
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from humanoid_env.observation import OBS_DIM, POSE
+from humanoid_env.observation import BODY_LINVEL, BODY_POS, OBS_DIM, POSE
 
 POSE_DIM = POSE.stop - POSE.start
 GOAL_BETA = 2.0      # goal reached when d_smpl <= beta
@@ -86,3 +87,61 @@ def _emd_by_assignment(a: np.ndarray, r: np.ndarray) -> float:
     cost = cdist(a, r)
     rows, cols = linear_sum_assignment(cost)
     return float(cost[rows, cols].mean())
+
+
+def dtw_pose_error(agent: np.ndarray, expert: np.ndarray) -> float:
+    """NEAR's average DTW pose error: the mean Euclidean distance between the poses that dynamic time warping
+    (dtaidistance's C implementation) pairs up along its optimal path. Inputs: (T, D) and (T', D) pose features,
+    e.g. root-relative body positions; the time warp forgives phase shifts and speed differences."""
+    from dtaidistance import dtw_ndim
+
+    a, e = np.ascontiguousarray(agent, dtype=np.float64), np.ascontiguousarray(expert, dtype=np.float64)
+    if a.ndim != 2 or e.ndim != 2 or a.shape[1] != e.shape[1] or not (len(a) and len(e)):
+        raise ValueError(f"dtw_pose_error: expected non-empty (T, D) trajectories, got {a.shape} and {e.shape}")
+    if not (np.isfinite(a).all() and np.isfinite(e).all()):
+        raise ValueError("dtw_pose_error: input contains NaN or inf")
+    path = np.asarray(dtw_ndim.warping_path(a, e, inner_dist="euclidean", use_c=True))
+    return float(np.linalg.norm(a[path[:, 0]] - e[path[:, 1]], axis=-1).mean())
+
+
+def speed_profile(positions: np.ndarray, fps: float) -> np.ndarray:
+    """|velocity| (T-1,) of a (T, 3) (or (T, 2)) position trajectory sampled at `fps` frames per second."""
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 2 or len(p) < 2:
+        raise ValueError(f"speed_profile: expected (T >= 2, D) positions, got {p.shape}")
+    return np.linalg.norm(np.diff(p, axis=0), axis=-1) * fps
+
+
+def sparc(speed: np.ndarray, fps: float, pad_level: int = 4, cutoff_hz: float = 10.0, amp_threshold: float = 0.05) -> float:
+    """Spectral arc length (SPARC, Balasubramanian et al. 2015): minus the arc length of the normalised magnitude
+    spectrum of a speed profile, up to the adaptive cut-off where the spectrum falls below `amp_threshold`
+    (at most `cutoff_hz`). Closer to 0 is smoother; compare an agent's with its expert's."""
+    v = np.asarray(speed, dtype=np.float64)
+    if v.ndim != 1 or len(v) < 2 or not np.isfinite(v).all():
+        raise ValueError(f"sparc: expected a finite (T >= 2,) speed profile, got shape {v.shape}")
+    if not v.any():
+        return 0.0  # no motion: a flat spectrum of zero length
+    nfft = int(2 ** (np.ceil(np.log2(len(v))) + pad_level))
+    freq = np.fft.rfftfreq(nfft, 1.0 / fps)
+    mag = np.abs(np.fft.rfft(v, nfft))
+    mag = mag / mag.max()
+    keep = freq <= cutoff_hz
+    freq, mag = freq[keep], mag[keep]
+    above = np.flatnonzero(mag >= amp_threshold)
+    freq, mag = freq[above[0]: above[-1] + 1], mag[above[0]: above[-1] + 1]
+    if len(freq) < 2:
+        return 0.0
+    return float(-np.sum(np.hypot(np.diff(freq) / (freq[-1] - freq[0]), np.diff(mag))))
+
+
+def imitation_scores(agent: np.ndarray, reference: np.ndarray, fps: float = 30.0) -> dict[str, float]:
+    """NEAR's imitation metrics of two humanoid observation trajectories (T, 358): DTW pose error over the
+    root-relative body positions (the 2-norm of all 23 stacked, in metres, as NEAR), and SPARC of the root's
+    speed (body 0's linear velocity) for the agent and for the reference."""
+    a, r = np.asarray(agent, dtype=np.float64), np.asarray(reference, dtype=np.float64)
+    if a.ndim != 2 or r.ndim != 2 or a.shape[1] != OBS_DIM or r.shape[1] != OBS_DIM:
+        raise ValueError(f"imitation_scores: expected (T, {OBS_DIM}) observations, got {a.shape} and {r.shape}")
+    root_speed = slice(BODY_LINVEL.start, BODY_LINVEL.start + 3)
+    return {"dtw": dtw_pose_error(a[:, BODY_POS], r[:, BODY_POS]),
+            "sparc": sparc(np.linalg.norm(a[:, root_speed], axis=-1), fps),
+            "sparc_expert": sparc(np.linalg.norm(r[:, root_speed], axis=-1), fps)}

@@ -10,6 +10,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+#: Per-clip imitation metrics (`fbcpr.evaluation.metrics.imitation_scores`) averaged into the tracking summary.
+IMITATION_KEYS = ("dtw", "sparc", "sparc_expert")
+
 
 def summarize(results: dict[str, Any]) -> dict[str, Any]:
     """Suite-level means, and reward returns averaged per Table 19 category."""
@@ -29,6 +32,8 @@ def summarize(results: dict[str, Any]) -> dict[str, Any]:
         t = results["tracking"].values()
         summary["tracking"] = {"success": float(np.mean([x["success"] for x in t])),
                                "emd": float(np.mean([x["emd"] for x in t]))}
+        summary["tracking"].update({k: float(np.mean([x[k] for x in t])) for k in IMITATION_KEYS
+                                    if all(k in x for x in t)})
     return summary
 
 
@@ -80,6 +85,9 @@ def print_report(results: dict[str, Any], console: Console | None = None) -> Non
         s = results["summary"]["tracking"]
         table.add_row("all", "", f"{s['success']:.2f}", f"{s['emd']:.3f}")
         con.print(table)
+        if "dtw" in s:
+            con.print(f"imitation: DTW pose error {s['dtw']:.3f} m, SPARC {s['sparc']:.2f} "
+                      f"(clips: {s['sparc_expert']:.2f})")
     by_reason: dict[str, list[str]] = {}
     for name, reason in results.get("skipped", {}).items():
         by_reason.setdefault(reason, []).append(name)

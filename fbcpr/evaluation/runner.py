@@ -15,9 +15,9 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from fbcpr.checkpoint import CheckpointError
-from fbcpr.evaluation.agents import Agent, action_mapping
+from fbcpr.evaluation.agents import Agent, SingleTaskAgent, action_mapping
 from fbcpr.prompt import PromptError
-from fbcpr.evaluation.metrics import d_smpl, emd, goal_proximity, goal_success, tracking_success
+from fbcpr.evaluation.metrics import d_smpl, emd, goal_proximity, goal_success, imitation_scores, tracking_success
 from humanoid_env.observation import OBS_DIM
 
 SUITES = ("reward", "goal", "tracking")
@@ -163,9 +163,11 @@ def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np
 
 
 def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch: int = 32,
-                   num_threads: int | None = None, report: Report | None = None) -> dict[str, Any]:
+                   num_threads: int | None = None, report: Report | None = None,
+                   imitation: bool = False) -> dict[str, Any]:
     """Tracking success (d_smpl <= 0.5 at every step) and EMD for each clip, from its first state (clips it
-    cannot prompt go to `report`)."""
+    cannot prompt go to `report`); with `imitation`, also NEAR's DTW pose error and SPARC (next to the clip's
+    own) of the same rollouts."""
     report = report if report is not None else Report()
     out: dict[str, Any] = {}
     bar = progress.add_task("tracking", total=sum(c.n_frames - 1 for c in clips))
@@ -206,6 +208,8 @@ def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch
             agent_traj = traj[i, :c.n_frames]
             out[c.name] = {"success": float(tracking_success(agent_traj, c.obs) and not dead[i]),
                            "emd": emd(agent_traj, c.obs), "frames": c.n_frames}
+            if imitation:
+                out[c.name].update(imitation_scores(agent_traj, c.obs))
             report.result("tracking", c.name, out[c.name])
             progress.advance(bar, c.n_frames - 1)
     return out
@@ -255,8 +259,14 @@ def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = Non
     if "tracking" in wanted and motions is None:
         raise ValueError("the tracking suite needs motions (a MotionLibrary)")
     clip_names = list(motions.names) if motions is not None else []
-    chosen = (_split_names(tasks, motions, wanted) if tasks
-              else {"reward": list(TASKS), "goal": list(GOALS), "tracking": clip_names})
+    single = isinstance(agent, SingleTaskAgent)  # evaluated on its own task: its reward, or the clips it imitates
+    imitation = single and agent.imitation is not None
+    if tasks:
+        chosen = _split_names(tasks, motions, wanted)
+    elif single:
+        chosen = {"reward": [agent.task] if agent.task else [], "goal": [], "tracking": clip_names if imitation else []}
+    else:
+        chosen = {"reward": list(TASKS), "goal": list(GOALS), "tracking": clip_names}
     results: dict[str, Any] = {"agent": agent_name or getattr(agent, "name", type(agent).__name__),
                                "episodes": episodes, "steps": steps, "fall_prob": fall_prob, "seed": seed,
                                "complete": False}
@@ -274,7 +284,7 @@ def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = Non
         if "tracking" in wanted and chosen["tracking"]:
             by_name = {c.name: c for c in motions.clips}
             tracking_suite(agent, [by_name[n] for n in chosen["tracking"]], progress, num_threads=num_threads,
-                           report=report)
+                           report=report, imitation=imitation)
     from fbcpr.evaluation.report import summarize
 
     results["summary"] = summarize(results)

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from fbcpr.envs import tracking_latents
+from fbcpr.evaluation.metrics import dtw_pose_error, sparc, speed_profile
 from fbcpr.latents import TEMPERATURE, reward_weights
 from fbcpr.networks import project_sphere
 from fbcpr.toy import pointmass as pm
@@ -20,6 +21,7 @@ N_STARTS = 10          # episodes per goal / per task
 HORIZON = 100
 REWARD_SAMPLES = 20_000
 GOAL_RADIUS = 0.2      # 5% of the arena's width
+FPS = 30.0             # the toy's nominal control rate, for speeds and SPARC (the humanoid's is 30 Hz too)
 
 
 def _act(model: Any, obs: np.ndarray, z: torch.Tensor | None, rng: np.random.Generator) -> np.ndarray:
@@ -52,19 +54,24 @@ def reward_z(model: Any, task: str, rng: np.random.Generator, temperature: float
     return project_sphere((reward_weights(r, temperature) @ b)[None])
 
 
+def task_return(model: Any, task: str, rng: np.random.Generator, prompt: bool = True) -> float:
+    """Mean episode return (100 steps, reward in [0, 1] per step) of `task` from N_STARTS random states.
+
+    prompt=True infers the task's z first (a prompt-able FB-CPR model); otherwise the policy acts as it is (a
+    single-task agent trained on this task, or the random policy when model is None)."""
+    env = pm.PointMassVectorEnv(N_STARTS, reward=task, max_episode_steps=HORIZON + 1)
+    obs, _ = env.reset(seed=int(rng.integers(1 << 31)))
+    z = reward_z(model, task, rng).expand(N_STARTS, -1) if prompt and model is not None else None
+    total = np.zeros(N_STARTS)
+    for _ in range(HORIZON):
+        obs, r, *_ = env.step(_act(model, obs, z, rng))
+        total += r
+    return float(total.mean())
+
+
 def reward_returns(model: Any, rng: np.random.Generator) -> dict[str, float]:
-    """Mean episode return (100 steps, reward in [0, 1] per step) of each task from random states."""
-    out = {}
-    for task in pm.TASKS:
-        env = pm.PointMassVectorEnv(N_STARTS, reward=task, max_episode_steps=HORIZON + 1)
-        obs, _ = env.reset(seed=int(rng.integers(1 << 31)))
-        z = None if model is None else reward_z(model, task, rng).expand(N_STARTS, -1)
-        total = np.zeros(N_STARTS)
-        for _ in range(HORIZON):
-            obs, r, *_ = env.step(_act(model, obs, z, rng))
-            total += r
-        out[f"return/{task}"] = float(total.mean())
-    return out
+    """`task_return` of every toy task, zero-shot."""
+    return {f"return/{task}": task_return(model, task, rng) for task in pm.TASKS}
 
 
 def imitation(model: Any, rng: np.random.Generator, seq_length: int = 8) -> dict[str, float]:
@@ -83,6 +90,22 @@ def imitation(model: Any, rng: np.random.Generator, seq_length: int = 8) -> dict
     all_err = np.concatenate(list(errs.values()))
     return {"track_error": float(all_err.mean()), "track_within_0.1": float((all_err < 0.1).mean()),
             **{f"track_error/{k}": float(v.mean()) for k, v in errs.items()}}
+
+
+def imitation_metrics(model: Any, demo: str, rng: np.random.Generator, fps: float = FPS) -> dict[str, float]:
+    """NEAR's imitation metrics for a policy that acts without a prompt (model=None: random), from the demo's first
+    state for its length: average DTW position error to the demo, and SPARC of the speed next to the demo's."""
+    ref = pm.demo_paths()[demo]
+    env = pm.PointMassVectorEnv(N_STARTS, max_episode_steps=len(ref) + 1)
+    obs, _ = env.reset(options={"qpos": np.repeat(ref[:1], N_STARTS, 0), "qvel": np.zeros((N_STARTS, pm.NV))})
+    traj = [obs]
+    for _ in range(len(ref) - 1):
+        obs, *_ = env.step(_act(model, obs, None, rng))
+        traj.append(obs)
+    paths = np.stack(traj, 1)                                               # (N_STARTS, T, 2)
+    return {"dtw": float(np.mean([dtw_pose_error(p, ref) for p in paths])),
+            "sparc": float(np.mean([sparc(speed_profile(p, fps), fps) for p in paths])),
+            "sparc_expert": sparc(speed_profile(ref, fps), fps)}
 
 
 def evaluate(model: Any, seed: int = 0, seq_length: int = 8) -> dict[str, float]:

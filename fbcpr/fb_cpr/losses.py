@@ -1,29 +1,18 @@
 """The losses of Algorithm 1 (App. B) as pure functions of network outputs, so each can be checked by hand.
 
 Shapes: m = ensemble size, n = batch size, d = z dimension. `discount` is the per-sample gamma * (1 - terminated).
+The ensemble TD loss and reduction (`fbcpr.ensemble_td`) and the discriminator's loss and gradient penalty
+(`fbcpr.adversarial`) are shared with the other methods and re-exported here under Algorithm 1's names.
 Ensemble-valued losses return the sum over members: each member's parameters only receive the gradient
 of its own term, and B receives the sum over members, as in lines 35-36 of Algorithm 1.
 """
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
-from fbcpr.networks import Discriminator
-
-
-def pessimistic(values: Tensor, coef: float) -> Tensor:
-    """Ensemble reduction of C.5.2: mean minus coef * mean pairwise |difference| over dim 0.
-
-    coef = 0 gives the mean; for two members coef = 0.5 gives their minimum.
-    """
-    m = values.shape[0]
-    mean = values.mean(0)
-    if coef == 0.0 or m == 1:
-        return mean
-    spread = (values.unsqueeze(0) - values.unsqueeze(1)).abs().sum((0, 1)) / (m * (m - 1))
-    return mean - coef * spread
+from fbcpr.adversarial import discriminator_loss, gradient_penalty  # noqa: F401  (Algorithm 1 lines 15-16)
+from fbcpr.ensemble_td import pessimistic, td_loss  # noqa: F401  (lines 25, 29, 32)
 
 
 def _off_diagonal_mean_sq(x: Tensor) -> Tensor:
@@ -59,30 +48,6 @@ def implicit_reward(B_next: Tensor, z: Tensor, ridge: float = 1e-6) -> Tensor:
         cov = cov + ridge * cov.diagonal().mean() * torch.eye(d, dtype=cov.dtype, device=cov.device)
         chol = torch.linalg.cholesky(cov)
         return (B_next * torch.cholesky_solve(z.T, chol).T).sum(-1)
-
-
-def td_loss(values: Tensor, reward: Tensor, target: Tensor, discount: Tensor) -> Tensor:
-    """Sum over members of mean_i (v_k,i - r_i - discount_i * target_i)^2 (lines 25 and 29). values: (m, n)."""
-    return (values - (reward + discount * target)).square().mean(-1).sum()
-
-
-def discriminator_loss(expert_logits: Tensor, online_logits: Tensor) -> Tensor:
-    """Cross-entropy (line 15): -mean log D(expert) - mean log(1 - D(online)), from logits."""
-    return F.softplus(-expert_logits).mean() + F.softplus(online_logits).mean()
-
-
-def gradient_penalty(disc: Discriminator, s_expert: Tensor, z_expert: Tensor, s_online: Tensor, z_online: Tensor,
-                     mix: Tensor) -> Tensor:
-    """WGAN-GP (Gulrajani et al.): mean (||grad_{(s,z)} logit(x_hat)||_2 - 1)^2 on x_hat interpolating both s and z.
-
-    mix: (n,) interpolation weights in [0, 1] (the expert weight)."""
-    w = mix[:, None]
-    s = (w * s_expert + (1 - w) * s_online).detach().requires_grad_(True)
-    z = (w * z_expert + (1 - w) * z_online).detach().requires_grad_(True)
-    logits = disc.logits(s, z)
-    gs, gz = torch.autograd.grad(logits.sum(), (s, z), create_graph=True)
-    norm = torch.sqrt(gs.square().sum(-1) + gz.square().sum(-1) + 1e-12)
-    return (norm - 1.0).square().mean()
 
 
 def actor_loss(Fz: Tensor, Q: Tensor, alpha: float, coef: float) -> Tensor:

@@ -13,7 +13,7 @@ import torch
 from torch import Tensor, nn
 
 from fbcpr.config import ModelConfig
-from fbcpr.networks import BackwardNet, Discriminator, ZConditionedNet, project_sphere
+from fbcpr.networks import BackwardNet, Discriminator, ZConditionedNet, noisy_action, project_sphere
 from fbcpr.normalizer import RunningNormalizer
 
 ArrayLike = TypeVar("ArrayLike", Tensor, np.ndarray)
@@ -39,6 +39,10 @@ class FBCPRModel(nn.Module):
     def device(self) -> torch.device:
         return self.obs_normalizer.mean.device
 
+    @property
+    def z_dim(self) -> int:
+        return self.cfg.z_dim
+
     # ------------------------------------------------------------------ training-side helpers (with grad)
     def normalize(self, obs: Tensor) -> Tensor:
         return self.obs_normalizer(obs)
@@ -49,11 +53,7 @@ class FBCPRModel(nn.Module):
 
     def actor_sample(self, obs_n: Tensor, z: Tensor, generator: torch.Generator | None = None) -> Tensor:
         """mean + clipped N(0, std^2) noise, clamped to [-1, 1] with a straight-through gradient."""
-        mean = self.actor_mean(obs_n, z)
-        noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
-        noise = (noise * self.cfg.actor_std).clamp(-self.cfg.actor_noise_clip, self.cfg.actor_noise_clip)
-        a = mean + noise
-        return a + (a.clamp(-1.0, 1.0) - a).detach()
+        return noisy_action(self.actor_mean(obs_n, z), self.cfg.actor_std, self.cfg.actor_noise_clip, generator)
 
     # ------------------------------------------------------------------ public inference API
     @torch.no_grad()

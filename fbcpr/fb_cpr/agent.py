@@ -15,10 +15,12 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from fbcpr import losses
-from fbcpr.config import AgentConfig, ModelConfig
-from fbcpr.model import FBCPRModel
+from fbcpr.config import AgentConfig, Config, ModelConfig
+from fbcpr.fb_cpr import losses
+from fbcpr.fb_cpr.imitation import discriminator_terms, encode_windows
+from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.networks import project_sphere
+from fbcpr.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.precision import resolve_bf16
 
 #: Modules with a Polyak-averaged target copy.
@@ -29,7 +31,9 @@ OPTIMISED = {"forward_map": "lr_f", "backward_map": "lr_b", "actor": "lr_actor",
 
 
 class FBCPRAgent:
-    """Model + target networks + Adam optimisers + the update of Algorithm 1."""
+    """Model + target networks + Adam optimisers + the update of Algorithm 1 (an `fbcpr.protocols.OnlineAgent`)."""
+
+    fields = ("obs", "action", "next_obs", "z", "terminated")
 
     def __init__(self, model_cfg: ModelConfig, agent_cfg: AgentConfig, device: str | torch.device = "cpu",
                  seed: int = 0) -> None:
@@ -52,6 +56,29 @@ class FBCPRAgent:
         self._gradient_penalty = (torch.compiler.disable(losses.gradient_penalty) if agent_cfg.compile
                                   else losses.gradient_penalty)
         self._compute = torch.compile(self._losses) if agent_cfg.compile else self._losses
+
+    @classmethod
+    def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> "FBCPRAgent":
+        return cls(cfg.model, cfg.agent, device, seed)
+
+    @property
+    def z_dim(self) -> int:
+        return self.model.cfg.z_dim
+
+    # ------------------------------------------------------------------------------------- rollouts
+    @torch.no_grad()
+    def rollout_z(self, n: int, online_next_obs: Tensor | None, expert_windows: Tensor) -> Tensor:
+        """n draws from nu for rollouts: B of online states, ER_FB of demonstration windows, uniform."""
+        model = self.model
+        online_b = None
+        if online_next_obs is not None:
+            online_b = model.backward_map(model.normalize(online_next_obs.to(self.device)))
+        expert_z = self.encode_windows(model.normalize(expert_windows.to(self.device)))
+        return self.sample_z(n, online_b, expert_z)
+
+    def act(self, obs: Tensor, z: Tensor) -> Tensor:
+        """The policy's exploration actions (clipped Gaussian noise around the tanh mean)."""
+        return self.model.act(obs, z, mean=False, generator=self.generator)
 
     # ------------------------------------------------------------------------------------- z sampling
     def sample_z(self, n: int, online_b: Tensor | None, expert_z: Tensor | None) -> Tensor:
@@ -79,11 +106,9 @@ class FBCPRAgent:
         keep = torch.rand(z.shape[0], generator=self.generator, device=self.device) >= self.cfg.relabel_prob
         return torch.where(keep[:, None], z, fresh)
 
-    @torch.no_grad()
     def encode_windows(self, windows_n: Tensor) -> Tensor:
-        """ER_FB: mean of B over each (normalized) window, projected to the sphere. (w, L, obs) -> (w, d)."""
-        w, L, o = windows_n.shape
-        return project_sphere(self.model.backward_map(windows_n.reshape(w * L, o)).view(w, L, -1).mean(1))
+        """ER_FB of normalized windows (w, L, obs) -> (w, d) (`fbcpr.fb_cpr.imitation.encode_windows`)."""
+        return encode_windows(self.model, windows_n)
 
     # ------------------------------------------------------------------------------------- update
     def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, float]:
@@ -112,20 +137,15 @@ class FBCPRAgent:
     def _losses(self, obs: Tensor, action: Tensor, next_obs: Tensor, z_buf: Tensor, terminated: Tensor,
                 expert: Tensor) -> dict[str, Tensor]:
         cfg, model, tg = self.cfg, self.model, self.targets
-        n, (w, L, o) = obs.shape[0], expert.shape
+        w, L = expert.shape[:2]
         obs_n, next_n = model.normalize(obs), model.normalize(next_obs)
         expert_n = model.normalize(expert)
         discount = cfg.discount * (1.0 - terminated)
 
         # discriminator: expert (s, ER_FB(window)) vs online (s, z) in one forward, plus WGAN-GP
         z_exp = self.encode_windows(expert_n)
-        z_exp_states = z_exp.repeat_interleave(L, 0)
-        s_exp = expert_n.reshape(w * L, o)
-        logits = model.discriminator.logits(torch.cat([s_exp, obs_n]), torch.cat([z_exp_states, z_buf]))
-        disc = losses.discriminator_loss(logits[: w * L], logits[w * L:])
-        k = min(w * L, n)
-        mix = torch.rand(k, generator=self.generator, device=self.device)
-        gp = self._gradient_penalty(model.discriminator, s_exp[:k], z_exp_states[:k], obs_n[:k], z_buf[:k], mix)
+        logits, disc, gp = discriminator_terms(model.discriminator, expert_n, z_exp, obs_n, z_buf, self.generator,
+                                               self._gradient_penalty)
 
         # B(s') once: FB loss, ortho loss, Sigma_B, online-goal relabeling
         B_next = model.backward_map(next_n)
@@ -169,6 +189,12 @@ class FBCPRAgent:
         }
 
     @torch.no_grad()
+    def sync_targets(self) -> None:
+        """Every target network := its online network (a warm start loads weights into `model` first)."""
+        for k in TARGETS:
+            self.targets[k].load_state_dict(getattr(self.model, k).state_dict())
+
+    @torch.no_grad()
     def soft_update(self) -> None:
         """Polyak averaging target <- (1 - tau) target + tau online, one fused op over all tensors."""
         tgt = [p for k in TARGETS for p in self.targets[k].parameters()]
@@ -181,12 +207,7 @@ class FBCPRAgent:
         tensors: dict[str, Tensor] = {f"target.{k}": v for k, v in self.targets.state_dict().items()}
         meta: dict[str, Any] = {"num_updates": self.num_updates, "optimizers": {}}
         for name, opt in self.optimizers.items():
-            sd = opt.state_dict()
-            meta["optimizers"][name] = {"param_groups": sd["param_groups"], "state_keys": {}}
-            for idx, st in sd["state"].items():
-                meta["optimizers"][name]["state_keys"][str(idx)] = sorted(st)
-                for key, val in st.items():
-                    tensors[f"optim.{name}.{idx}.{key}"] = torch.as_tensor(val)
+            meta["optimizers"][name] = optimizer_state(opt, f"optim.{name}", tensors)
         tensors["agent_generator"] = self.generator.get_state()
         return tensors, meta
 
@@ -198,10 +219,7 @@ class FBCPRAgent:
         self.targets.to(self.device)
         try:
             for name, opt in self.optimizers.items():
-                om = meta["optimizers"][name]
-                state = {int(idx): {key: tensors[f"optim.{name}.{idx}.{key}"] for key in keys}
-                         for idx, keys in om["state_keys"].items()}
-                opt.load_state_dict({"state": state, "param_groups": om["param_groups"]})
+                load_optimizer_state(opt, f"optim.{name}", meta["optimizers"][name], tensors)
             self.generator.set_state(tensors["agent_generator"])
             self.num_updates = int(meta["num_updates"])
         except (KeyError, ValueError, RuntimeError) as e:

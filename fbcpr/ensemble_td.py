@@ -1,0 +1,25 @@
+"""Ensemble critics' TD maths shared by every TD3-style learner (FB-CPR's F and Q, TD3's Q).
+
+Shapes: m = ensemble size, n = batch size. `discount` is the per-sample gamma * (1 - terminated).
+"""
+from __future__ import annotations
+
+from torch import Tensor
+
+
+def pessimistic(values: Tensor, coef: float) -> Tensor:
+    """Ensemble reduction of C.5.2: mean minus coef * mean pairwise |difference| over dim 0.
+
+    coef = 0 gives the mean; for two members coef = 0.5 gives their minimum.
+    """
+    m = values.shape[0]
+    mean = values.mean(0)
+    if coef == 0.0 or m == 1:
+        return mean
+    spread = (values.unsqueeze(0) - values.unsqueeze(1)).abs().sum((0, 1)) / (m * (m - 1))
+    return mean - coef * spread
+
+
+def td_loss(values: Tensor, reward: Tensor, target: Tensor, discount: Tensor) -> Tensor:
+    """Sum over members of mean_i (v_k,i - r_i - discount_i * target_i)^2 (Algorithm 1 lines 25, 29). values: (m, n)."""
+    return (values - (reward + discount * target)).square().mean(-1).sum()
