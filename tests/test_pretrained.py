@@ -1,0 +1,48 @@
+"""The model that ships inside the package: loads by name, fits its size budget, prompts, and drives the demo."""
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors import safe_open
+from typer.testing import CliRunner
+
+from fbcpr import BFM
+from fbcpr.bfm import PRETRAINED_DIR
+from fbcpr.cli.app import app
+
+torch.set_num_threads(1)
+MAX_BYTES = 25 * 2**20
+
+
+def test_ships_within_budget_with_a_float16_reward_subsample_and_a_model_card():
+    files = {p.name: p.stat().st_size for p in PRETRAINED_DIR.iterdir()}
+    assert {"model.safetensors", "config.yaml", "manifest.json", "reward_buffer.safetensors", "README.md"} <= set(files)
+    assert sum(files.values()) <= MAX_BYTES, files
+    with safe_open(str(PRETRAINED_DIR / "reward_buffer.safetensors"), framework="pt") as f:
+        assert {f.get_slice(k).get_dtype() for k in f.keys()} == {"F16"}
+        assert f.get_slice("next_obs").get_shape()[0] >= 10_000
+    card = (PRETRAINED_DIR / "README.md").read_text()
+    for fact in ("DeepMimic", "env steps", "updates", "CPU", "upright"):
+        assert fact in card, fact
+
+
+def test_loads_by_name_and_prompts():
+    bfm = BFM.pretrained()
+    assert bfm.action_mapping == "rest" and bfm.obs_dim == 358 and bfm.action_dim == 69
+    z = bfm.prompt.reward("move-ego-0-0")
+    assert z.shape == (bfm.z_dim,) and np.isclose(np.linalg.norm(z), np.sqrt(bfm.z_dim), rtol=1e-4)
+    obs = np.asarray(bfm.reward_buffer["next_obs"][:4])
+    action = bfm.act(obs, np.broadcast_to(z, (4, bfm.z_dim)))
+    assert action.shape == (4, 69) and np.isfinite(action).all() and np.abs(action).max() <= 1.0
+    assert BFM.load("pretrained").z_dim == bfm.z_dim
+
+
+def test_demo_prompts_the_pretrained_model(tmp_path):
+    out = tmp_path / "demo"
+    res = CliRunner().invoke(app, ["demo", "--out", str(out), "--episodes", "1", "--eval-steps", "5", "--no-video"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((out / "demo_summary.json").read_text())
+    assert summary["model"] == "pretrained" and summary["training"] is None
+    assert set(summary["scores"]) == {"FB-CPR", "zero action", "random action"}
+    assert "pretrained model" in summary["verdict"]
