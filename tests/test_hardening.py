@@ -1,0 +1,207 @@
+"""Regression tests from the fault-injection run (issue 16): every bad input ends in the package's own error type,
+with a one-line message naming the file, key or argument, and fast (nothing here inflates, trains or imports)."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from humanoid_env.model import default_qpos
+from motions.clip import ClipFormatError, from_qpos, load_clip, save_clip
+from motions.importers import UnknownFormatError, detect_format, import_file
+from motions.importers.amass import AmassFormatError, read_amass
+from motions.importers.bvh import BvhFormatError, parse_bvh
+from motions.importers.deepmimic import DeepMimicFormatError, read_frames
+from motions.limits import MAX_SECONDS_ENV
+
+
+# --- motion inputs ------------------------------------------------------------------------------------------------
+
+def _deepmimic(path: Path, durations: list[float]) -> Path:
+    rest = [0.0, 0.9, 0.0] + [1.0, 0.0, 0.0, 0.0] * 3 + ([1.0, 0, 0, 0, 0.0] + [1.0, 0, 0, 0]) * 2
+    rest += ([1.0, 0, 0, 0, 0.0]) * 2
+    rows = [[d] + rest for d in durations]
+    assert len(rows[0]) == 44
+    path.write_text(json.dumps({"Loop": "none", "Frames": rows}))
+    return path
+
+
+@pytest.mark.parametrize("durations, message", [
+    ([3600.0, 0.0], r"frame time 3600 s \(frame 0\) is outside"),
+    ([1e-9, 1e-9, 0.0], "frame time 1e-09 s"),
+    ([0.0, 0.0], "frame time 0 s"),
+    ([-0.03, 0.0], "is outside"),
+])
+def test_deepmimic_frame_times_are_bounded(tmp_path, durations, message):
+    path = _deepmimic(tmp_path / "clip.txt", durations)
+    with pytest.raises(DeepMimicFormatError, match=message) as err:
+        read_frames(path)
+    assert str(path) in str(err.value)
+
+
+def test_deepmimic_duration_cap_names_the_setting(tmp_path, monkeypatch):
+    path = _deepmimic(tmp_path / "clip.txt", [0.5] * 10 + [0.0])
+    read_frames(path)
+    monkeypatch.setenv(MAX_SECONDS_ENV, "2")
+    with pytest.raises(DeepMimicFormatError, match=f"over the 2 s limit.*{MAX_SECONDS_ENV}"):
+        read_frames(path)
+
+
+def test_deeply_nested_json_is_a_format_error(tmp_path):
+    path = tmp_path / "deep.txt"
+    path.write_text("{\"Frames\": " + "[" * 100_000 + "]" * 100_000 + "}")
+    with pytest.raises(DeepMimicFormatError, match="nested too deeply"):
+        import_file(path, use_cache=False)
+
+
+def _bvh(frame_time: str, frames: str = "3", depth: int = 1) -> str:
+    joints = "".join(f"JOINT J{i} {{ OFFSET 0 1 0 CHANNELS 3 Zrotation Xrotation Yrotation\n" for i in range(depth - 1))
+    closing = "}\n" * (depth - 1)
+    n_frames = int(float(frames)) if frames.isdigit() else 0
+    values = "\n".join(" ".join(["0"] * (6 + 3 * (depth - 1))) for _ in range(n_frames))
+    return (f"HIERARCHY\nROOT Hips {{ OFFSET 0 0 0 CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation "
+            f"Yrotation\n{joints}End Site {{ OFFSET 0 1 0 }}\n{closing}}}\nMOTION\nFrames: {frames}\n"
+            f"Frame Time: {frame_time}\n{values}\n")
+
+
+@pytest.mark.parametrize("frame_time, frames, message", [
+    ("1e-9", "3", "frame time 1e-09 s"),
+    ("inf", "3", "frame time must be finite"),
+    ("nan", "3", "frame time must be finite"),
+    ("0", "3", "frame time 0 s"),
+    ("0.0333", "inf", "expected a count"),
+    ("0.0333", "1e12", "over the 600 s limit"),
+    ("0.0333", "2.5", "expected a count"),
+])
+def test_bvh_frame_times_and_counts_are_bounded(frame_time, frames, message):
+    with pytest.raises(BvhFormatError, match=message):
+        parse_bvh(_bvh(frame_time, frames), "walk.bvh")
+
+
+def test_bvh_deep_nesting_is_a_format_error():
+    with pytest.raises(BvhFormatError, match="walk.bvh: joints nested more than"):
+        parse_bvh(_bvh("0.0333", "3", depth=5000), "walk.bvh")
+
+
+def _npz_with_header(path: Path, members: dict[str, tuple[tuple[int, ...], str]]) -> Path:
+    """An .npz whose members declare `shape`/`dtype` in their headers but hold almost no data."""
+    with zipfile.ZipFile(path, "w") as zf:
+        for key, (shape, descr) in members.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array_header_1_0(buf, {"descr": descr, "fortran_order": False, "shape": shape})
+            zf.writestr(f"{key}.npy", buf.getvalue() + b"\0" * 64)
+    return path
+
+
+def _amass(path: Path, fps: float, n: int = 40) -> Path:
+    np.savez(path, poses=np.zeros((n, 72)), trans=np.zeros((n, 3)), mocap_framerate=np.float64(fps))
+    return path
+
+
+@pytest.mark.parametrize("fps, message", [
+    (1e-6, "outside"), (1e9, "outside"), (0.0, "must be finite"), (-30.0, "outside"), (np.nan, "must be finite"),
+    (np.inf, "outside"),
+])
+def test_amass_frame_rates_are_bounded(tmp_path, fps, message):
+    path = _amass(tmp_path / "a.npz", fps)
+    with pytest.raises(AmassFormatError, match=message) as err:
+        read_amass(path)
+    assert str(path) in str(err.value)
+
+
+def test_amass_headers_are_checked_before_reading(tmp_path):
+    path = _npz_with_header(tmp_path / "huge.npz", {"poses": ((10**12, 76), "<f8"), "trans": ((10**12, 3), "<f8"),
+                                                       "mocap_framerate": ((), "<f8")})
+    with pytest.raises(AmassFormatError, match="'poses' declares"):
+        read_amass(path)
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"\x93NUMPY plain npy", "not a valid clip archive"),
+    (b"{\"Frames\": []}", "not a valid clip archive"),
+    (os.urandom(256), "not a valid clip archive"),
+])
+def test_non_archives_are_not_valid_clips_and_never_suggest_unpickling(tmp_path, content, message):
+    path = tmp_path / "clip.npz"
+    path.write_bytes(content)
+    with pytest.raises(ClipFormatError, match=message) as err:
+        load_clip(path)
+    assert "pickle" not in str(err.value) and str(path) in str(err.value)
+
+
+def test_a_real_npy_renamed_npz_is_not_a_clip(tmp_path):
+    np.save(tmp_path / "x.npy", np.zeros((3, 76)))
+    path = tmp_path / "x.npz"
+    (tmp_path / "x.npy").rename(path)
+    with pytest.raises(ClipFormatError, match="not a valid clip archive"):
+        load_clip(path)
+
+
+def test_a_motion_file_given_as_a_clip_says_import_it_first(tmp_path):
+    path = _deepmimic(tmp_path / "walk.txt", [0.03] * 5)
+    with pytest.raises(ClipFormatError, match="import it first with `fbcpr motions import`"):
+        load_clip(path)
+
+
+@pytest.mark.parametrize("members, message", [
+    ({"qpos": ((10**12, 76), "<f8")}, "declares 1000000000000 frames"),
+    ({"qpos": ((3, 76), "|O")}, "never unpickled"),
+])
+def test_clip_headers_are_checked_before_reading(tmp_path, members, message):
+    path = _npz_with_header(tmp_path / "c.npz", members)
+    with pytest.raises(ClipFormatError, match=message):
+        load_clip(path)
+
+
+def _clip(n: int = 12):
+    q = np.repeat(default_qpos()[None], n, axis=0)
+    q[:, 0] = 0.5 * np.arange(n) / 30.0
+    return from_qpos(q, name="probe", source="test", license="MIT")
+
+
+def _rewrite(path: Path, **changes: np.ndarray) -> None:
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays.update(changes)
+    np.savez(path, **arrays)
+
+
+def test_every_frame_is_checked(tmp_path):
+    clip = _clip()
+    path = save_clip(clip, tmp_path / "c.npz")
+    obs = clip.obs.copy()
+    obs[5] += 0.5
+    _rewrite(path, obs=obs)
+    with pytest.raises(ClipFormatError, match="first at frame 5"):
+        load_clip(path)
+
+
+def test_root_teleport_is_rejected(tmp_path):
+    q = np.repeat(default_qpos()[None], 12, axis=0)
+    q[6:, 0] += 50.0
+    with pytest.raises(ClipFormatError, match="root moves .* between frames 5 and 6"):
+        from_qpos(q, name="teleport")
+
+
+def test_named_pipe_is_refused_not_read(tmp_path):
+    fifo = tmp_path / "pipe.bvh"
+    os.mkfifo(fifo)
+    with pytest.raises(UnknownFormatError, match="not a regular file"):
+        detect_format(fifo)
+
+
+def test_motions_info_lists_good_clips_beside_bad_ones(tmp_path):
+    from fbcpr.cli.app import app
+
+    save_clip(_clip(), tmp_path / "good.npz")
+    np.save(tmp_path / "bad.npy", np.zeros(3))
+    (tmp_path / "bad.npy").rename(tmp_path / "bad.npz")
+    res = CliRunner().invoke(app, ["motions", "info", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "probe" in res.output and "invalid" in res.output
