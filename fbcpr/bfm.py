@@ -25,6 +25,7 @@ from fbcpr.checkpoint import (
     REWARD_KEYS,
     Checkpoint,
     CheckpointError,
+    latest_checkpoint,
     load_checkpoint,
     save_checkpoint,
 )
@@ -299,9 +300,14 @@ def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: 
     """A local checkpoint directory as is, `pretrained` (the shipped model, unless a local folder has that name),
     or a Hub repo id downloaded into (or found in) the HF cache."""
     path = Path(src).expanduser()
-    if str(src) == PRETRAINED_NAME and not path.exists():
+    try:
+        exists = path.exists()
+    except OSError as e:  # e.g. a name longer than the file system allows
+        raise CheckpointError(f"{str(src)[:60]}{'...' if len(str(src)) > 60 else ''}: not a usable checkpoint path "
+                              f"({e.strerror})") from None
+    if str(src) == PRETRAINED_NAME and not exists:
         return pretrained_dir()
-    if path.exists():
+    if exists:
         if not path.is_dir():
             raise CheckpointError(f"{path}: not a checkpoint directory (expected a folder with {MODEL_FILE})")
         return _latest_in_run(path)
@@ -328,8 +334,8 @@ def _latest_in_run(path: Path) -> Path:
     if (path / MANIFEST_FILE).exists():
         return path
     for root in (path / "checkpoints", path):
-        if (root / "latest").is_file():
-            return root / (root / "latest").read_text().strip()
+        if (root / "latest").exists():
+            return latest_checkpoint(root)
     return path
 
 

@@ -36,7 +36,7 @@ from rich.table import Column
 from rich.text import Text
 
 from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.checkpoint import CheckpointError, load_checkpoint, load_state_strict, read_trainer_meta, save_checkpoint
+from fbcpr.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, load_state_strict, read_trainer_meta, save_checkpoint
 from fbcpr.config import Config, ConfigError
 from fbcpr.envs import EnvBundle, make_env, tracking_scores
 from fbcpr.evaluation.metrics import EMDUnavailable
@@ -386,11 +386,7 @@ class Trainer:
         self.agent.sync_targets()
 
     def _resume(self) -> None:
-        root = self.out / "checkpoints"
-        latest = root / "latest"
-        if not latest.exists():
-            raise CheckpointError(f"{root}: nothing to resume (no 'latest' pointer)")
-        ckpt = load_checkpoint(root / latest.read_text().strip(), self.device)
+        ckpt = load_checkpoint(latest_checkpoint(self.out / "checkpoints"), self.device)
         load_state_strict(self.agent.model, ckpt.model.state_dict(), str(ckpt.path / "model.safetensors"))
         tensors, meta = ckpt.trainer_state()
         self.agent.load_state(tensors, meta)
@@ -553,10 +549,7 @@ def train(cfg: Config, out_dir: str | Path, resume: bool = False, progress: bool
 
 def checkpoint_env_steps(run_dir: str | Path) -> int:
     """Env steps of a run directory's latest checkpoint (read from its trainer-state header only)."""
-    root = Path(run_dir) / "checkpoints"
-    if not (root / "latest").is_file():
-        raise CheckpointError(f"{run_dir}: no checkpoint to resume (no checkpoints/latest)")
-    path = root / (root / "latest").read_text().strip()
+    path = latest_checkpoint(Path(run_dir) / "checkpoints")
     try:
         return int(read_trainer_meta(path)["env_steps"])
     except KeyError:

@@ -205,3 +205,122 @@ def test_motions_info_lists_good_clips_beside_bad_ones(tmp_path):
     res = CliRunner().invoke(app, ["motions", "info", str(tmp_path)])
     assert res.exit_code == 0, res.output
     assert "probe" in res.output and "invalid" in res.output
+
+
+# --- configs --------------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("section, key, value", [
+    ("train", "num_envs", 10**30), ("train", "buffer_capacity", 10**12), ("model", "hidden_dim", 10**9),
+    ("model", "z_dim", 10**6), ("agent", "batch_size", 10**9), ("model", "hidden_layers", 10**4),
+])
+def test_config_ranges_name_the_key(section, key, value):
+    from fbcpr.config import ConfigError, config_from_dict
+
+    with pytest.raises(ConfigError, match=rf"^{section}\.{key}: must be"):
+        config_from_dict({section: {key: value}})
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"train:\n  num_envs: 4\n  num_envs: 8\n", r"c\.yaml:3:3: invalid YAML: duplicate key 'num_envs'"),
+    (b"train: {seed: 1, seed: 2}\n", "duplicate key 'seed'"),
+    (b"train:\n  seed: \xff\xfe\n", "not UTF-8 text"),
+])
+def test_bad_config_files_are_config_errors(tmp_path, content, message):
+    from fbcpr.config import ConfigError, load_config
+
+    path = tmp_path / "c.yaml"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError, match=message):
+        load_config(path)
+
+
+def test_a_directory_as_config_is_a_config_error(tmp_path):
+    from fbcpr.config import ConfigError, load_config
+
+    with pytest.raises(ConfigError, match="is a directory"):
+        load_config(tmp_path)
+
+
+# --- timelines ------------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("text, message", [
+    ("jump-2:1e9", "'jump-2:1e9': duration must be a positive number of seconds, at most 3600"),
+    ("jump-2:inf", "at most 3600"), ("jump-2:nan", "positive number"), ("jump-2:0", "positive number"),
+])
+def test_timeline_durations_are_bounded(text, message):
+    from fbcpr.prompt import PromptError
+    from fbcpr.timeline import parse_timeline
+
+    with pytest.raises(PromptError, match=message):
+        parse_timeline(text)
+
+
+def test_timeline_total_is_bounded_before_any_prompt_runs():
+    from fbcpr.prompt import PromptError
+    from fbcpr.timeline import Timeline
+
+    with pytest.raises(PromptError, match=r"segment 2 \(walk\): the timeline would last 4000 s"):
+        Timeline.build(prompt=None, items=[("walk", 2000.0), ("walk", 2000.0)])
+
+
+# --- checkpoints ----------------------------------------------------------------------------------------------------
+
+def _checkpoint(tmp_path: Path) -> Path:
+    import torch
+
+    from fbcpr.checkpoint import save_checkpoint
+    from fbcpr.config import config_from_dict
+    from fbcpr.fb_cpr.model import FBCPRModel
+
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3}})
+    torch.manual_seed(0)
+    return save_checkpoint(tmp_path / "run" / "checkpoints" / "step_0000000010", FBCPRModel(cfg.model), cfg)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda m: m.update(files=list(m["files"])), "'files' must map file names"),
+    (lambda m: m["files"]["model.safetensors"].pop("bytes"), "files.model.safetensors: must be"),
+    (lambda m: m["files"]["config.yaml"].update(sha256=5), "files.config.yaml: must be"),
+    (lambda m: m.update(algorithm=["fb_cpr"]), "'algorithm' must be a string"),
+    (lambda m: m.update(format_version="1"), "format_version '1' is not supported"),
+])
+def test_malformed_manifest_is_a_checkpoint_error(tmp_path, edit, message):
+    from fbcpr.checkpoint import CheckpointError, load_checkpoint
+
+    path = _checkpoint(tmp_path)
+    manifest = json.loads((path / "manifest.json").read_text())
+    edit(manifest)
+    (path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(CheckpointError, match=message):
+        load_checkpoint(path)
+
+
+def test_binary_manifest_is_a_checkpoint_error(tmp_path):
+    from fbcpr.checkpoint import CheckpointError, load_checkpoint
+
+    path = _checkpoint(tmp_path)
+    (path / "manifest.json").write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(CheckpointError, match="manifest.json: invalid JSON"):
+        load_checkpoint(path)
+
+
+@pytest.mark.parametrize("pointer", ["", ".", "latest", "../elsewhere"])
+def test_bad_latest_pointer_is_named(tmp_path, pointer):
+    from fbcpr.bfm import BFM
+    from fbcpr.checkpoint import CheckpointError
+    from fbcpr.trainer import checkpoint_env_steps
+
+    path = _checkpoint(tmp_path)
+    (path.parent / "latest").write_text(pointer)
+    with pytest.raises(CheckpointError, match=r"checkpoints/latest: must name a checkpoint folder"):
+        BFM.load(tmp_path / "run")
+    with pytest.raises(CheckpointError, match=r"checkpoints/latest: must name"):
+        checkpoint_env_steps(tmp_path / "run")
+
+
+def test_overlong_checkpoint_path_is_a_checkpoint_error():
+    from fbcpr.bfm import BFM
+    from fbcpr.checkpoint import CheckpointError
+
+    with pytest.raises(CheckpointError, match="not a usable checkpoint path"):
+        BFM.load("a" * 300 + "/b")
