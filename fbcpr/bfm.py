@@ -159,6 +159,9 @@ class BFM:
         """Actions in [-1, 1] for obs (obs_dim,) or (N, obs_dim) and z (z_dim,) or (N, z_dim).
 
         Returns the kind of `obs` (numpy or torch) with its batch convention; a single z is shared by a batch.
+        z is projected onto the model's sqrt(z_dim) sphere first, where every prompt's z lies and the policy was
+        trained, so a z of any nonzero norm is used by its direction. Actions are always finite: an obs so far
+        outside the training range that the policy would output NaN raises ValueError instead.
         """
         as_torch = isinstance(obs, torch.Tensor)
         o, zt = self._tensor(obs, "obs"), self._tensor(z, "z")
@@ -172,8 +175,15 @@ class BFM:
             raise ValueError(f"z: expected shape ({self.z_dim},) or ({o.shape[0]}, {self.z_dim}), got {z_shape}")
         if not (_all_finite(o) and _all_finite(zt)):
             raise ValueError("obs and z must be finite (found NaN or inf)")
+        norms = torch.linalg.vector_norm(zt.double(), dim=-1)
+        if not bool((norms > 0).all()):
+            raise ValueError("z: must be nonzero (it is projected onto the sphere of radius sqrt(z_dim))")
         with torch.inference_mode():
+            zt = self.model.project_z((zt.double() / norms[:, None]).to(zt.dtype))  # unit first: 1e30 would overflow
             a = self.model.act(o, zt, mean=mean, generator=generator)
+        if not _all_finite(a):
+            raise ValueError("obs: gives non-finite actions (values far outside the observation range the model "
+                             "was trained on)")
         a = a[0] if single else a
         return a if as_torch else a.cpu().numpy()
 

@@ -168,7 +168,9 @@ def save_checkpoint(
             missing = [k for k in REWARD_KEYS if k not in reward_buffer]
             if missing:
                 raise CheckpointError(f"reward_buffer: missing arrays {missing}")
-            put(REWARD_FILE, {k: torch.as_tensor(np.asarray(reward_buffer[k])).to(reward_dtype) for k in REWARD_KEYS})
+            arrays = {k: torch.as_tensor(np.asarray(reward_buffer[k])).to(reward_dtype) for k in REWARD_KEYS}
+            finite = torch.stack([torch.isfinite(v.reshape(len(v), -1)).all(1) for v in arrays.values()]).all(0)
+            put(REWARD_FILE, {k: v[finite] for k, v in arrays.items()})  # one inf row would break every reward prompt
         if replay_buffer is not None:
             put(REPLAY_FILE, *replay_buffer)
         cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}

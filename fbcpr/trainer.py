@@ -53,6 +53,8 @@ WARNINGS: tuple[tuple[str, Callable[[dict[str, float]], bool], str], ...] = (
      "penalty and the actor learns little from it (a signature of runs that end lying on the ground)"),
     ("bang-bang", lambda m: m.get("action_saturated", 0.0) > 0.5,
      "over half of the policy's action components sit beyond 0.9: a bang-bang actor, which falls"),
+    ("non-finite", lambda m: m.get("buffer_dropped", 0) > 0,
+     "transitions with NaN or inf values reached the replay buffer and were dropped (see buffer_dropped)"),
 )
 
 
@@ -224,6 +226,8 @@ class Trainer:
             fps = (self.env_steps - steps0) / max(time.perf_counter() - t0, 1e-9)
             row = {"env_steps": self.env_steps, "updates": self.updates, "episodes": self.episodes,
                    "env_steps_per_s": fps, **self.last_metrics, **self._take_action_stats(), **extra}
+            if self.buffer.dropped:
+                row["buffer_dropped"] = self.buffer.dropped
             self._log(row)
             self._warn(row)
             if not self.progress_enabled:

@@ -324,3 +324,114 @@ def test_overlong_checkpoint_path_is_a_checkpoint_error():
 
     with pytest.raises(CheckpointError, match="not a usable checkpoint path"):
         BFM.load("a" * 300 + "/b")
+
+
+# --- non-finite values ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("bad, message", [
+    (np.inf, "contains NaN or inf"), (np.nan, "contains NaN or inf"), ("x", "must be numbers"),
+])
+def test_env_checks_actions_before_clipping(bad, message):
+    from humanoid_env.actions import InvalidActionError
+    from humanoid_env.env import HumanoidEnv
+    from humanoid_env.model import NU
+
+    env = HumanoidEnv()
+    env.reset(seed=0)
+    action = np.zeros(NU, dtype=object if isinstance(bad, str) else np.float64)
+    action[3] = bad
+    with pytest.raises(InvalidActionError, match=rf"^action {message}"):
+        env.step(action)
+
+
+def test_vector_env_checks_actions_before_clipping():
+    from humanoid_env.actions import InvalidActionError
+    from humanoid_env.model import NU
+    from humanoid_env.vector import VectorHumanoidEnv
+
+    env = VectorHumanoidEnv(2, num_threads=1)
+    env.reset(seed=0)
+    actions = np.zeros((2, NU))
+    actions[1, 0] = np.inf
+    with pytest.raises(InvalidActionError, match=r"actions contain NaN or inf \(envs \[1\]\)"):
+        env.step(actions)
+
+
+@pytest.mark.parametrize("index, value", [(2, 1e39), (7 + 76, 1e300)])
+def test_env_never_emits_non_finite_observations(index, value):
+    from humanoid_env.env import HumanoidEnv
+    from humanoid_env.model import NQ, default_qpos
+
+    qpos, qvel = default_qpos().copy(), np.zeros(75)
+    if index < NQ:
+        qpos[index] = value
+    else:
+        qvel[index - NQ] = value
+    env = HumanoidEnv()
+    with pytest.raises(ValueError, match="reset: the state's observation is not finite"):
+        env.reset(seed=0, options={"qpos": qpos, "qvel": qvel})
+
+
+def test_buffer_drops_and_counts_non_finite_rows():
+    from fbcpr.buffer import ReplayBuffer, transition_specs
+
+    buf = ReplayBuffer(10, transition_specs(4, 2, 3, 5, 5))
+    batch = {k: np.zeros((3, *s), dtype=np.float64) for k, s in buf.specs.items()}
+    batch["qpos"][1, 0] = 1e39  # finite float64, inf as float32
+    batch["obs"][2, 0] = np.nan
+    buf.add(batch)
+    assert (len(buf), buf.dropped) == (1, 2)
+    assert all(np.isfinite(v[: len(buf)]).all() for v in buf.data.values())
+
+
+def test_checkpoint_reward_buffer_is_filtered_on_save(tmp_path):
+    import torch
+
+    from fbcpr.checkpoint import load_checkpoint, save_checkpoint
+    from fbcpr.config import config_from_dict
+    from fbcpr.fb_cpr.model import FBCPRModel
+
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3}})
+    reward = {"next_obs": np.zeros((4, 6)), "qpos": np.zeros((4, 4)), "qvel": np.zeros((4, 3))}
+    reward["qpos"][0, 0] = np.inf
+    reward["qvel"][3, 0] = 1e6  # finite in float32, inf in float16
+    save_checkpoint(tmp_path / "c", FBCPRModel(cfg.model), cfg, reward_buffer=reward, reward_dtype=torch.float16)
+    assert load_checkpoint(tmp_path / "c").reward_buffer()["qpos"].shape == (2, 4)
+
+
+def _bfm():
+    import torch
+
+    from fbcpr.bfm import BFM
+    from fbcpr.config import config_from_dict
+    from fbcpr.fb_cpr.model import FBCPRModel
+
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3}})
+    torch.manual_seed(0)
+    return BFM(FBCPRModel(cfg.model), cfg)
+
+
+def test_act_projects_z_onto_the_sphere():
+    bfm = _bfm()
+    obs = np.ones(6, dtype=np.float32)
+    z = np.full(bfm.z_dim, 1.0, dtype=np.float32)
+    a = bfm.act(obs, z * 1e30)
+    assert np.isfinite(a).all()
+    np.testing.assert_allclose(a, bfm.act(obs, z), atol=1e-6)
+
+
+@pytest.mark.parametrize("obs_value, z_value, message", [
+    (3e38, 1.0, "obs: gives non-finite actions"), (1.0, 0.0, "z: must be nonzero"),
+])
+def test_act_never_returns_non_finite_actions(obs_value, z_value, message):
+    bfm = _bfm()
+    with pytest.raises(ValueError, match=message):
+        bfm.act(np.full(6, obs_value, dtype=np.float32), np.full(bfm.z_dim, z_value, dtype=np.float32))
+
+
+@pytest.mark.parametrize("temperature", [-1.0, np.nan, np.inf])
+def test_reward_temperature_is_validated_and_named(temperature):
+    from fbcpr.prompt import Prompt, PromptError
+
+    with pytest.raises(PromptError, match="temperature: must be a finite number >= 0"):
+        Prompt(_bfm()).reward(lambda *a: np.zeros(1), temperature=temperature)
