@@ -197,6 +197,26 @@ def save_checkpoint(
     return path
 
 
+def discard_checkpoint(path: Path) -> None:
+    """Delete a checkpoint by renaming it to a hidden temporary name first, so a kill during the deletion never
+    leaves a half-deleted folder under a real checkpoint name (the leftover goes at the next start)."""
+    doomed = path.parent / f".{path.name}.deleting-{uuid.uuid4().hex[:8]}"
+    os.rename(path, doomed)
+    shutil.rmtree(doomed, ignore_errors=True)
+
+
+def remove_stale_temporaries(root: Path) -> list[Path]:
+    """Remove what killed saves and deletions left in a checkpoints folder (`.NAME.tmp-*`, `.NAME.deleting-*`,
+    `.latest.tmp`); `.NAME.previous` backups stay, as load_checkpoint falls back to them. Returns what went."""
+    stale = [p for p in root.glob(".*") if ".tmp-" in p.name or ".deleting-" in p.name or p.name == ".latest.tmp"]
+    for p in stale:
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+    return stale
+
+
 def _fsync_dir(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:

@@ -36,7 +36,16 @@ from rich.table import Column
 from rich.text import Text
 
 from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, load_state_strict, read_trainer_meta, save_checkpoint
+from fbcpr.checkpoint import (
+    CheckpointError,
+    discard_checkpoint,
+    latest_checkpoint,
+    load_checkpoint,
+    load_state_strict,
+    read_trainer_meta,
+    remove_stale_temporaries,
+    save_checkpoint,
+)
 from fbcpr.config import Config, ConfigError
 from fbcpr.envs import EnvBundle, make_env, tracking_scores
 from fbcpr.evaluation.metrics import EMDUnavailable
@@ -101,6 +110,8 @@ class Trainer:
         if self.warm_started:
             self._warm_start(init_from)
         self.out.mkdir(parents=True, exist_ok=True)
+        if (self.out / "checkpoints").is_dir():
+            remove_stale_temporaries(self.out / "checkpoints")
         specs = transition_specs(b.obs_dim, b.action_dim, self.agent.z_dim, b.nq, b.nv)
         big = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) > tc.buffer_memmap_mb * 2**20
         self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if big else None)
@@ -235,9 +246,9 @@ class Trainer:
             while self.next_log <= self.env_steps:
                 self.next_log += tc.log_every
         if self.env_steps >= self.next_ckpt:
-            self.save()
-            while self.next_ckpt <= self.env_steps:
+            while self.next_ckpt <= self.env_steps:  # advanced first: the checkpoint records the next one
                 self.next_ckpt += tc.checkpoint_every
+            self.save()
 
     def evaluate(self, refresh_priorities: bool = False) -> dict[str, float]:
         """Track the clips (tracking EMD / success), optionally refresh priorities, plus the custom eval hook."""
@@ -330,7 +341,7 @@ class Trainer:
         self._saved_at = self.env_steps
         for p in prunable_checkpoints(root, tc.keep_checkpoints, tc.keep_every):
             if p != path:
-                shutil.rmtree(p, ignore_errors=True)
+                discard_checkpoint(p)
         return path
 
     def _checkpoint_path(self) -> Path:

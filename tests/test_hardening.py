@@ -435,3 +435,57 @@ def test_reward_temperature_is_validated_and_named(temperature):
 
     with pytest.raises(PromptError, match="temperature: must be a finite number >= 0"):
         Prompt(_bfm()).reward(lambda *a: np.zeros(1), temperature=temperature)
+
+
+# --- crash leftovers and resume ------------------------------------------------------------------------------------
+
+def test_pruning_never_leaves_a_half_deleted_checkpoint_under_its_name(tmp_path, monkeypatch):
+    import fbcpr.checkpoint as ckpt_mod
+
+    path = _checkpoint(tmp_path)
+
+    def killed(p, ignore_errors=False):
+        (Path(p) / "model.safetensors").unlink()  # part of the folder is gone, then the process dies
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ckpt_mod.shutil, "rmtree", killed)
+    with pytest.raises(KeyboardInterrupt):
+        ckpt_mod.discard_checkpoint(path)
+    assert not path.exists()
+    monkeypatch.undo()
+    assert [p.name.split(".deleting-")[0] for p in ckpt_mod.remove_stale_temporaries(path.parent)] == [f".{path.name}"]
+    assert sorted(p.name for p in path.parent.iterdir()) == []
+
+
+def _toy_trainer(out: Path, **train):
+    from fbcpr.config import config_from_dict
+    from fbcpr.trainer import Trainer
+
+    cfg = config_from_dict({"model": {"preset": "tiny"}, "agent": {"batch_size": 32},
+                            "env": {"name": "toy", "max_episode_steps": 30},
+                            "train": {"num_envs": 4, "buffer_capacity": 1000, "reward_buffer_size": 50,
+                                      "torch_threads": 1, "eval_every": 0, "priority_every": 0, **train}})
+    return Trainer(cfg, out, progress=False)
+
+
+def test_stale_save_temporaries_are_removed_at_start_and_backups_kept(tmp_path):
+    root = tmp_path / "run" / "checkpoints"
+    for name in (".step_0000000010.tmp-1a2b3c4d", ".step_0000000020.deleting-00ff00ff", ".step_0000000030.previous"):
+        (root / name).mkdir(parents=True)
+        (root / name / "model.safetensors").write_bytes(b"x" * 100)
+    (root / ".latest.tmp").write_text("step_0000000010")
+    _toy_trainer(tmp_path / "run")
+    assert sorted(p.name for p in root.iterdir()) == [".step_0000000030.previous"]
+
+
+def test_checkpoint_records_the_next_checkpoint_not_the_current_one(tmp_path):
+    import time
+
+    from fbcpr.trainer import checkpoint_env_steps
+    from fbcpr.checkpoint import read_trainer_meta
+
+    tr = _toy_trainer(tmp_path / "run", checkpoint_every=40, log_every=10**6)
+    tr.env_steps = 40
+    tr._periodic(time.perf_counter(), 0, 1000)
+    meta = read_trainer_meta(tmp_path / "run" / "checkpoints" / "step_0000000040")
+    assert checkpoint_env_steps(tmp_path / "run") == 40 and meta["next_ckpt"] == 80
