@@ -101,6 +101,7 @@ class Trainer:
         self.cfg = cfg = replace(cfg, model=replace(cfg.model, obs_dim=b.obs_dim, action_dim=b.action_dim))
         if cfg.agent.batch_size > tc.buffer_capacity:
             raise ConfigError("train.buffer_capacity: must be >= agent.batch_size")
+        self._memmap_buffer = check_memory(cfg, b.nq, b.nv, self.out, self.device)
 
         random.seed(tc.seed)
         np.random.seed(tc.seed)
@@ -113,8 +114,7 @@ class Trainer:
         if (self.out / "checkpoints").is_dir():
             remove_stale_temporaries(self.out / "checkpoints")
         specs = transition_specs(b.obs_dim, b.action_dim, self.agent.z_dim, b.nq, b.nv)
-        big = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) > tc.buffer_memmap_mb * 2**20
-        self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if big else None)
+        self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if self._memmap_buffer else None)
 
         self.env_steps = self.updates = self.episodes = 0
         self.next_priority = tc.priority_every or math.inf
@@ -404,6 +404,10 @@ class Trainer:
         ckpt = load_checkpoint(latest_checkpoint(self.out / "checkpoints"), self.device)
         load_state_strict(self.agent.model, ckpt.model.state_dict(), str(ckpt.path / "model.safetensors"))
         tensors, meta = ckpt.trainer_state()
+        saved_envs = tensors["env_qpos"].shape[0] if "env_qpos" in tensors else self.cfg.train.num_envs
+        if saved_envs != self.cfg.train.num_envs:
+            raise ConfigError(f"train.num_envs: {self.cfg.train.num_envs}, but {ckpt.path} was saved with "
+                              f"{saved_envs} envs; resume with num_envs: {saved_envs} (or start a new run)")
         self.agent.load_state(tensors, meta)
         try:
             self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
@@ -510,6 +514,48 @@ class _RateColumn(ProgressColumn):
 
     def render(self, task: Task) -> Text:
         return Text(f"{task.speed:,.0f}/s" if task.speed else "-/s")
+
+
+#: Bytes per model parameter during training: weights, gradients, two Adam moments and a target copy.
+BYTES_PER_PARAMETER = 20
+
+
+def _memory_bytes(device: torch.device) -> int:
+    """Total memory of the device the model trains on (RAM for the CPU)."""
+    if device.type == "cuda":
+        return int(torch.cuda.get_device_properties(device).total_memory)
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device) -> bool:
+    """Estimate the model's and the replay buffer's memory before allocating either, and raise ConfigError
+    naming the key to lower when they cannot fit, instead of an allocation failing (or the OOM killer striking)
+    minutes later. Returns whether the buffer is memory-mapped (over train.buffer_memmap_mb)."""
+    tc = cfg.train
+    with torch.device("meta"):  # shapes only: no memory is allocated
+        model = get_method(cfg.algorithm).model(cfg.model)
+    params = sum(p.numel() for p in model.parameters())
+    need, have = params * BYTES_PER_PARAMETER, _memory_bytes(device)
+    if need > have:
+        raise ConfigError(f"model: {params / 1e6:,.0f}M parameters need about {need / 2**30:,.1f} GiB to train, "
+                          f"more than the {have / 2**30:,.1f} GiB of {device.type} memory; lower model.hidden_dim, "
+                          "model.hidden_layers or model.preset")
+    specs = transition_specs(cfg.model.obs_dim, cfg.model.action_dim, getattr(model, "z_dim", 0), nq, nv)
+    buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs)
+    memmap = buffer > tc.buffer_memmap_mb * 2**20
+    if memmap:
+        folder = next(p for p in (out, *out.absolute().parents) if p.exists())
+        free = shutil.disk_usage(folder).free
+        if buffer > free:
+            raise ConfigError(f"train.buffer_capacity: the memory-mapped replay buffer needs {buffer / 2**30:,.1f} GiB "
+                              f"on disk, more than the {free / 2**30:,.1f} GiB free at {folder}")
+    else:
+        ram = _memory_bytes(torch.device("cpu"))
+        if buffer + (need if device.type == "cpu" else 0) > ram:
+            raise ConfigError(f"train.buffer_capacity: the replay buffer needs {buffer / 2**30:,.1f} GiB of memory, "
+                              f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
+                              "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
+    return memmap
 
 
 def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Path]:

@@ -2,6 +2,7 @@
 with a one-line message naming the file, key or argument, and fast (nothing here inflates, trains or imports)."""
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -489,3 +490,34 @@ def test_checkpoint_records_the_next_checkpoint_not_the_current_one(tmp_path):
     tr._periodic(time.perf_counter(), 0, 1000)
     meta = read_trainer_meta(tmp_path / "run" / "checkpoints" / "step_0000000040")
     assert checkpoint_env_steps(tmp_path / "run") == 40 and meta["next_ckpt"] == 80
+
+
+@pytest.mark.parametrize("train, model, message", [
+    ({}, {"hidden_dim": 16384, "hidden_layers": 8}, r"^model: .* parameters need about .* lower model.hidden_dim"),
+    ({"buffer_capacity": 10**9, "buffer_memmap_mb": 10**9}, {}, r"^train.buffer_capacity: the replay buffer needs"),
+    ({"buffer_capacity": 10**9, "buffer_memmap_mb": 0}, {}, r"^train.buffer_capacity: the memory-mapped replay buffer"),
+])
+def test_memory_is_estimated_up_front_naming_the_key(tmp_path, monkeypatch, train, model, message):
+    import shutil
+
+    import fbcpr.trainer as trainer_mod
+    from fbcpr.config import ConfigError, config_from_dict
+
+    monkeypatch.setattr(trainer_mod, "_memory_bytes", lambda device: 8 * 2**30)
+    monkeypatch.setattr(trainer_mod.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(2**40, 2**40 - 2**30, 2**30))
+    cfg = config_from_dict({"model": {"preset": "tiny", **model}, "env": {"name": "toy"},
+                            "train": {"num_envs": 2, **train}})
+    with pytest.raises(ConfigError, match=message):
+        trainer_mod.Trainer(cfg, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+
+
+def test_resume_with_other_num_envs_names_the_key(tmp_path):
+    from fbcpr.config import ConfigError
+    from fbcpr.trainer import Trainer
+
+    tr = _toy_trainer(tmp_path / "run")
+    tr.save()
+    cfg = dataclasses.replace(tr.cfg, train=dataclasses.replace(tr.cfg.train, num_envs=8))
+    with pytest.raises(ConfigError, match=r"^train.num_envs: 8, but .* was saved with 4 envs"):
+        Trainer(cfg, tmp_path / "run", resume=True, progress=False)
