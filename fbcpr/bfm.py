@@ -25,6 +25,7 @@ from fbcpr.checkpoint import (
     REWARD_KEYS,
     Checkpoint,
     CheckpointError,
+    latest_checkpoint,
     load_checkpoint,
     save_checkpoint,
 )
@@ -158,6 +159,9 @@ class BFM:
         """Actions in [-1, 1] for obs (obs_dim,) or (N, obs_dim) and z (z_dim,) or (N, z_dim).
 
         Returns the kind of `obs` (numpy or torch) with its batch convention; a single z is shared by a batch.
+        z is projected onto the model's sqrt(z_dim) sphere first, where every prompt's z lies and the policy was
+        trained, so a z of any nonzero norm is used by its direction. Actions are always finite: an obs so far
+        outside the training range that the policy would output NaN raises ValueError instead.
         """
         as_torch = isinstance(obs, torch.Tensor)
         o, zt = self._tensor(obs, "obs"), self._tensor(z, "z")
@@ -171,8 +175,15 @@ class BFM:
             raise ValueError(f"z: expected shape ({self.z_dim},) or ({o.shape[0]}, {self.z_dim}), got {z_shape}")
         if not (_all_finite(o) and _all_finite(zt)):
             raise ValueError("obs and z must be finite (found NaN or inf)")
+        norms = torch.linalg.vector_norm(zt.double(), dim=-1)
+        if not bool((norms > 0).all()):
+            raise ValueError("z: must be nonzero (it is projected onto the sphere of radius sqrt(z_dim))")
         with torch.inference_mode():
+            zt = self.model.project_z((zt.double() / norms[:, None]).to(zt.dtype))  # unit first: 1e30 would overflow
             a = self.model.act(o, zt, mean=mean, generator=generator)
+        if not _all_finite(a):
+            raise ValueError("obs: gives non-finite actions (values far outside the observation range the model "
+                             "was trained on)")
         a = a[0] if single else a
         return a if as_torch else a.cpu().numpy()
 
@@ -299,9 +310,14 @@ def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: 
     """A local checkpoint directory as is, `pretrained` (the shipped model, unless a local folder has that name),
     or a Hub repo id downloaded into (or found in) the HF cache."""
     path = Path(src).expanduser()
-    if str(src) == PRETRAINED_NAME and not path.exists():
+    try:
+        exists = path.exists()
+    except OSError as e:  # e.g. a name longer than the file system allows
+        raise CheckpointError(f"{str(src)[:60]}{'...' if len(str(src)) > 60 else ''}: not a usable checkpoint path "
+                              f"({e.strerror})") from None
+    if str(src) == PRETRAINED_NAME and not exists:
         return pretrained_dir()
-    if path.exists():
+    if exists:
         if not path.is_dir():
             raise CheckpointError(f"{path}: not a checkpoint directory (expected a folder with {MODEL_FILE})")
         return _latest_in_run(path)
@@ -328,8 +344,8 @@ def _latest_in_run(path: Path) -> Path:
     if (path / MANIFEST_FILE).exists():
         return path
     for root in (path / "checkpoints", path):
-        if (root / "latest").is_file():
-            return root / (root / "latest").read_text().strip()
+        if (root / "latest").exists():
+            return latest_checkpoint(root)
     return path
 
 

@@ -29,6 +29,7 @@ class ReplayBuffer:
             raise ValueError(f"ReplayBuffer specs: missing fields {missing}")
         self.capacity, self.specs = capacity, dict(specs)
         self.size, self.pos = 0, 0
+        self.dropped = 0  # transitions refused by `add` for NaN or inf values
         self.memmap_dir = Path(memmap_dir) if memmap_dir is not None else None
         if self.memmap_dir is not None:
             self.memmap_dir.mkdir(parents=True, exist_ok=True)
@@ -47,15 +48,27 @@ class ReplayBuffer:
         return self.size
 
     def add(self, batch: dict[str, np.ndarray]) -> None:
-        """Append k transitions (every field with leading dim k), overwriting the oldest when full."""
+        """Append k transitions (every field with leading dim k), overwriting the oldest when full.
+
+        A transition with a NaN or inf in any field (float32 overflow of a huge but finite state included) is
+        dropped and counted in `dropped`: one stored inf would break every later update and reward prompt."""
         k = len(batch["obs"])
+        arrays = {}
         for name, shape in self.specs.items():
             arr = np.asarray(batch[name], dtype=np.float32)
             if arr.shape != (k, *shape):
                 raise ValueError(f"ReplayBuffer.add: field {name!r} has shape {arr.shape}, expected {(k, *shape)}")
+            arrays[name] = arr
+        finite = np.ones(k, dtype=bool)
+        for arr in arrays.values():
+            finite &= np.isfinite(arr.reshape(k, -1)).all(axis=1)
+        if not finite.all():
+            self.dropped += int(k - finite.sum())
+            arrays = {name: arr[finite] for name, arr in arrays.items()}
+            k = int(finite.sum())
         idx = (self.pos + np.arange(k)) % self.capacity
         for name in self.specs:
-            self.data[name][idx] = batch[name]
+            self.data[name][idx] = arrays[name]
         self.pos = int((self.pos + k) % self.capacity)
         self.size = int(min(self.size + k, self.capacity))
 

@@ -168,7 +168,9 @@ def save_checkpoint(
             missing = [k for k in REWARD_KEYS if k not in reward_buffer]
             if missing:
                 raise CheckpointError(f"reward_buffer: missing arrays {missing}")
-            put(REWARD_FILE, {k: torch.as_tensor(np.asarray(reward_buffer[k])).to(reward_dtype) for k in REWARD_KEYS})
+            arrays = {k: torch.as_tensor(np.asarray(reward_buffer[k])).to(reward_dtype) for k in REWARD_KEYS}
+            finite = torch.stack([torch.isfinite(v.reshape(len(v), -1)).all(1) for v in arrays.values()]).all(0)
+            put(REWARD_FILE, {k: v[finite] for k, v in arrays.items()})  # one inf row would break every reward prompt
         if replay_buffer is not None:
             put(REPLAY_FILE, *replay_buffer)
         cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}
@@ -195,6 +197,26 @@ def save_checkpoint(
     return path
 
 
+def discard_checkpoint(path: Path) -> None:
+    """Delete a checkpoint by renaming it to a hidden temporary name first, so a kill during the deletion never
+    leaves a half-deleted folder under a real checkpoint name (the leftover goes at the next start)."""
+    doomed = path.parent / f".{path.name}.deleting-{uuid.uuid4().hex[:8]}"
+    os.rename(path, doomed)
+    shutil.rmtree(doomed, ignore_errors=True)
+
+
+def remove_stale_temporaries(root: Path) -> list[Path]:
+    """Remove what killed saves and deletions left in a checkpoints folder (`.NAME.tmp-*`, `.NAME.deleting-*`,
+    `.latest.tmp`); `.NAME.previous` backups stay, as load_checkpoint falls back to them. Returns what went."""
+    stale = [p for p in root.glob(".*") if ".tmp-" in p.name or ".deleting-" in p.name or p.name == ".latest.tmp"]
+    for p in stale:
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+    return stale
+
+
 def _fsync_dir(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:
@@ -219,6 +241,50 @@ def _swap_into_place(tmp: Path, path: Path) -> None:
     shutil.rmtree(backup, ignore_errors=True)
 
 
+def latest_checkpoint(root: Path) -> Path:
+    """The checkpoint that `root/latest` names; CheckpointError naming the pointer when it is missing, empty, or
+    points anywhere but a sibling checkpoint folder (a loop such as `.` or `latest` included)."""
+    pointer = root / "latest"
+    try:
+        name = pointer.read_text().strip()
+    except FileNotFoundError:
+        raise CheckpointError(f"{pointer}: missing (no checkpoint to resume)") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise CheckpointError(f"{pointer}: unreadable pointer ({e})") from None
+    if not name or name in (".", "..", "latest") or "/" in name or os.sep in name:
+        raise CheckpointError(f"{pointer}: must name a checkpoint folder beside it (e.g. step_0000100000), got {name!r}")
+    return root / name
+
+
+def read_manifest(file: Path) -> dict[str, Any]:
+    """manifest.json, checked against its schema (format, version, one {bytes, sha256} entry per file), so a
+    damaged manifest is a CheckpointError naming the key, never an AttributeError deep inside the loader."""
+    try:
+        manifest = json.loads(file.read_bytes().decode("utf-8"))
+    except FileNotFoundError:
+        raise CheckpointError(f"{file}: missing") from None
+    except OSError as e:
+        raise CheckpointError(f"{file}: cannot read ({e.strerror})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+        raise CheckpointError(f"{file}: invalid JSON ({e.__class__.__name__}: {str(e).splitlines()[0][:80]})") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise CheckpointError(f"{file}: not an {FORMAT} manifest")
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(f"{file}: format_version {manifest.get('format_version')!r} "
+                              f"is not supported (expected {FORMAT_VERSION})")
+    if not isinstance(manifest.get("algorithm", DEFAULT_ALGORITHM), str):
+        raise CheckpointError(f"{file}: 'algorithm' must be a string")
+    files = manifest.get("files")
+    if not isinstance(files, dict):
+        raise CheckpointError(f"{file}: 'files' must map file names to {{bytes, sha256}}, got {type(files).__name__}")
+    for name, entry in files.items():
+        ok = (isinstance(entry, dict) and isinstance(entry.get("bytes"), int) and not isinstance(entry["bytes"], bool)
+              and entry["bytes"] >= 0 and isinstance(entry.get("sha256"), str) and len(entry["sha256"]) == 64)
+        if not ok:
+            raise CheckpointError(f"{file}: files.{name}: must be {{\"bytes\": int >= 0, \"sha256\": 64 hex digits}}")
+    return manifest
+
+
 def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Checkpoint:
     """Load and verify a checkpoint directory; never unpickles. Raises CheckpointError naming the problem."""
     path = Path(path)
@@ -226,17 +292,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
         path = _backup_name(path)  # a save was interrupted between its two renames: the old one is intact
     if not path.is_dir():
         raise CheckpointError(f"{path}: not a checkpoint directory")
-    try:
-        manifest = json.loads((path / MANIFEST_FILE).read_text())
-    except FileNotFoundError:
-        raise CheckpointError(f"{path / MANIFEST_FILE}: missing") from None
-    except json.JSONDecodeError as e:
-        raise CheckpointError(f"{path / MANIFEST_FILE}: invalid JSON ({e})") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
-        raise CheckpointError(f"{path / MANIFEST_FILE}: not an {FORMAT} manifest")
-    if manifest.get("format_version") != FORMAT_VERSION:
-        raise CheckpointError(f"{path / MANIFEST_FILE}: format_version {manifest.get('format_version')} "
-                              f"is not supported (expected {FORMAT_VERSION})")
+    manifest = read_manifest(path / MANIFEST_FILE)
     _verify(path / CONFIG_FILE, manifest)
     try:
         data = yaml.safe_load((path / CONFIG_FILE).read_text())

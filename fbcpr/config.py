@@ -28,6 +28,12 @@ def _check(pred: Callable[[Any], bool], what: str) -> Callable[[Any], str | None
     return lambda v: None if pred(v) else what
 
 
+def _range(lo: float, hi: float) -> Callable[[Any], str | None]:
+    """Bounds that keep a value within what one machine can run: a typo like 10**9 envs fails here, naming its
+    key, not minutes later inside an allocation."""
+    return _check(lambda v: lo <= v <= hi, f"must be in [{lo:,}, {hi:,}]")
+
+
 POSITIVE = _check(lambda v: v > 0, "must be > 0")
 NON_NEGATIVE = _check(lambda v: v >= 0, "must be >= 0")
 PROB = _check(lambda v: 0.0 <= v <= 1.0, "must be in [0, 1]")
@@ -46,15 +52,15 @@ class ModelConfig:
 
     obs_dim: int | None = _f(None, POSITIVE)
     action_dim: int | None = _f(None, POSITIVE)
-    z_dim: int = _f(256, POSITIVE)
-    hidden_dim: int = _f(1024, _check(lambda v: v >= 2 and v % 2 == 0, "must be an even int >= 2"))
-    hidden_layers: int = _f(1, NON_NEGATIVE)
-    embedding_layers: int = _f(2, _check(lambda v: v >= 2, "must be >= 2"))
-    backward_hidden_dim: int = _f(256, POSITIVE)
-    backward_hidden_layers: int = _f(1, POSITIVE)
-    discriminator_hidden_dim: int = _f(1024, POSITIVE)
-    discriminator_hidden_layers: int = _f(3, POSITIVE)
-    ensemble_size: int = _f(2, _check(lambda v: v >= 1, "must be >= 1"))
+    z_dim: int = _f(256, _range(1, 4096))
+    hidden_dim: int = _f(1024, _check(lambda v: 2 <= v <= 16384 and v % 2 == 0, "must be an even int in [2, 16,384]"))
+    hidden_layers: int = _f(1, _range(0, 64))
+    embedding_layers: int = _f(2, _range(2, 64))
+    backward_hidden_dim: int = _f(256, _range(1, 16384))
+    backward_hidden_layers: int = _f(1, _range(1, 64))
+    discriminator_hidden_dim: int = _f(1024, _range(1, 16384))
+    discriminator_hidden_layers: int = _f(3, _range(1, 64))
+    ensemble_size: int = _f(2, _range(1, 64))
     actor_std: float = _f(0.2, POSITIVE)
     actor_noise_clip: float = _f(0.3, POSITIVE)
     norm_obs: bool = _f(True)
@@ -65,8 +71,8 @@ class ModelConfig:
 class AgentConfig:
     """Learning hyperparameters of Algorithm 1 (Tables 3 and 9)."""
 
-    batch_size: int = _f(1024, _check(lambda v: v >= 2, "must be >= 2"))
-    seq_length: int = _f(8, POSITIVE)
+    batch_size: int = _f(1024, _range(2, 2**20))
+    seq_length: int = _f(8, _range(1, 10_000))
     discount: float = _f(0.98, _check(lambda v: 0.0 <= v < 1.0, "must be in [0, 1)"))
     lr_f: float = _f(1e-4, POSITIVE)
     lr_b: float = _f(1e-5, POSITIVE)
@@ -102,7 +108,7 @@ class EnvConfig:
     name: str = _f("humanoid", _check(lambda v: v in ("humanoid", "toy"), "must be 'humanoid' or 'toy'"))
     motions: str = _f("synthetic")  # humanoid: a folder of clips; toy: "synthetic" (all demos) or demo names
     fall_prob: float = _f(0.2, PROB)
-    max_episode_steps: int = _f(300, POSITIVE)
+    max_episode_steps: int = _f(300, _range(1, 10**7))
     action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
 
 
@@ -113,23 +119,23 @@ class TrainConfig:
     seed: int = _f(0, NON_NEGATIVE)
     device: str = _f("cpu", _check(lambda v: v == "cpu" or v.startswith("cuda") or v == "auto", "must be cpu, cuda[:i] or auto"))
     total_env_steps: int = _f(30_000_000, POSITIVE)
-    num_envs: int = _f(50, POSITIVE)
+    num_envs: int = _f(50, _range(1, 4096))
     warmup_steps: int = _f(50_000, NON_NEGATIVE)
-    rollout_steps: int = _f(500, POSITIVE)
-    updates_per_rollout: int = _f(50, NON_NEGATIVE)
-    buffer_capacity: int = _f(5_000_000, POSITIVE)
+    rollout_steps: int = _f(500, _range(1, 10**7))
+    updates_per_rollout: int = _f(50, _range(0, 10**7))
+    buffer_capacity: int = _f(5_000_000, _range(1, 10**9))
     buffer_memmap_mb: float = _f(2048.0, NON_NEGATIVE)
     z_update_every: int = _f(150, POSITIVE)
     priority_every: int = _f(1_000_000, NON_NEGATIVE)
-    priority_max_clips: int = _f(256, POSITIVE)
+    priority_max_clips: int = _f(256, _range(1, 10**6))
     eval_every: int = _f(0, NON_NEGATIVE)
     checkpoint_every: int = _f(1_000_000, NON_NEGATIVE)
     keep_checkpoints: int = _f(3, POSITIVE)
     keep_every: int = _f(0, NON_NEGATIVE)
     log_every: int = _f(10_000, POSITIVE)
-    reward_buffer_size: int = _f(100_000, NON_NEGATIVE)
+    reward_buffer_size: int = _f(100_000, _range(0, 10**7))
     save_buffer: bool = _f(False)
-    torch_threads: int = _f(0, NON_NEGATIVE)
+    torch_threads: int = _f(0, _range(0, 1024))
 
 
 @dataclass
@@ -242,6 +248,21 @@ def model_config_from_dict(data: dict[str, Any]) -> ModelConfig:
     return _build(ModelConfig, data, "model")
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """safe_load that rejects a key given twice in one mapping: YAML would silently keep the last one."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if not isinstance(key, typing.Hashable):
+                continue  # SafeLoader names an unhashable key itself
+            if key in seen:
+                raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
 #: Config keys that hold a file or folder path, for the envs where they do ("synthetic" names the built-in clips,
 #: and the toy's env.motions names demonstrations, not paths).
 PATH_KEYS = (("env", "motions", "humanoid"),)
@@ -252,9 +273,15 @@ def load_config(path: str | Path) -> Config:
     config works from any working directory."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_bytes().decode("utf-8"), Loader=_UniqueKeyLoader)
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, not a config file") from None
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read ({e.strerror})") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: not UTF-8 text (invalid byte at offset {e.start})") from None
     except yaml.MarkedYAMLError as e:
         mark = e.problem_mark or e.context_mark
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)

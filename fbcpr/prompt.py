@@ -62,6 +62,9 @@ class Prompt:
         fn, label = _reward_fn(task)
         if n < 1:
             raise PromptError(f"number of reward samples must be positive, got {n}")
+        if method == "weighted" and not (isinstance(temperature, (int, float)) and np.isfinite(temperature)
+                                         and temperature >= 0):
+            raise PromptError(f"temperature: must be a finite number >= 0, got {temperature!r}")
         if self.bfm.reward_buffer is None:
             raise PromptError("this checkpoint ships no reward-inference buffer (reward_buffer.safetensors): "
                               "reward prompts need one; goal, track and imitate prompts still work")

@@ -50,10 +50,20 @@ def parse_timeline(text: str) -> list[tuple[str, float]]:
             seconds = float(secs)
         except ValueError:
             raise PromptError(f"timeline entry {part!r}: duration {secs!r} is not a number of seconds") from None
-        if not np.isfinite(seconds) or seconds <= 0:
-            raise PromptError(f"timeline entry {part!r}: duration must be a positive number of seconds")
+        check_seconds(f"timeline entry {part!r}", seconds)
         out.append((spec.strip(), seconds))
     return out
+
+
+#: Longest segment and whole timeline: an hour is 108,000 control steps of z (about 110 MB at z_dim 256).
+MAX_SECONDS = 3600.0
+
+
+def check_seconds(where: str, seconds: float, limit: float = MAX_SECONDS) -> None:
+    """PromptError unless a duration is finite, positive and at most `limit`: a typo like 1e9 s would otherwise
+    allocate one z per control step for 30 years."""
+    if not (np.isfinite(seconds) and 0 < seconds <= limit):
+        raise PromptError(f"{where}: duration must be a positive number of seconds, at most {limit:g}, got {seconds:g}")
 
 
 def classify(spec: str) -> Kind:
@@ -86,6 +96,14 @@ class Timeline:
     @classmethod
     def build(cls, prompt: Prompt, items: Sequence[tuple[Item, float]], fps: float = CONTROL_HZ) -> "Timeline":
         """Infer the z of every (item, seconds) pair; reward and goal zs are held, clips are tracked."""
+        total = 0.0
+        for i, (item, seconds) in enumerate(items, 1):  # all bounds first: no prompt runs for a timeline that fails
+            label = "z" if isinstance(item, np.ndarray) else str(item)
+            check_seconds(f"timeline segment {i} ({label})", seconds)
+            total += seconds
+            if total > MAX_SECONDS:
+                raise PromptError(f"timeline segment {i} ({label}): the timeline would last {total:g} s, "
+                                  f"longer than {MAX_SECONDS:g} s")
         segments = []
         for item, seconds in items:
             steps = max(1, int(round(seconds * fps)))

@@ -36,7 +36,16 @@ from rich.table import Column
 from rich.text import Text
 
 from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.checkpoint import CheckpointError, load_checkpoint, load_state_strict, read_trainer_meta, save_checkpoint
+from fbcpr.checkpoint import (
+    CheckpointError,
+    discard_checkpoint,
+    latest_checkpoint,
+    load_checkpoint,
+    load_state_strict,
+    read_trainer_meta,
+    remove_stale_temporaries,
+    save_checkpoint,
+)
 from fbcpr.config import Config, ConfigError
 from fbcpr.envs import EnvBundle, make_env, tracking_scores
 from fbcpr.evaluation.metrics import EMDUnavailable
@@ -53,6 +62,8 @@ WARNINGS: tuple[tuple[str, Callable[[dict[str, float]], bool], str], ...] = (
      "penalty and the actor learns little from it (a signature of runs that end lying on the ground)"),
     ("bang-bang", lambda m: m.get("action_saturated", 0.0) > 0.5,
      "over half of the policy's action components sit beyond 0.9: a bang-bang actor, which falls"),
+    ("non-finite", lambda m: m.get("buffer_dropped", 0) > 0,
+     "transitions with NaN or inf values reached the replay buffer and were dropped (see buffer_dropped)"),
 )
 
 
@@ -90,6 +101,7 @@ class Trainer:
         self.cfg = cfg = replace(cfg, model=replace(cfg.model, obs_dim=b.obs_dim, action_dim=b.action_dim))
         if cfg.agent.batch_size > tc.buffer_capacity:
             raise ConfigError("train.buffer_capacity: must be >= agent.batch_size")
+        self._memmap_buffer = check_memory(cfg, b.nq, b.nv, self.out, self.device)
 
         random.seed(tc.seed)
         np.random.seed(tc.seed)
@@ -99,9 +111,10 @@ class Trainer:
         if self.warm_started:
             self._warm_start(init_from)
         self.out.mkdir(parents=True, exist_ok=True)
+        if (self.out / "checkpoints").is_dir():
+            remove_stale_temporaries(self.out / "checkpoints")
         specs = transition_specs(b.obs_dim, b.action_dim, self.agent.z_dim, b.nq, b.nv)
-        big = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) > tc.buffer_memmap_mb * 2**20
-        self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if big else None)
+        self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if self._memmap_buffer else None)
 
         self.env_steps = self.updates = self.episodes = 0
         self.next_priority = tc.priority_every or math.inf
@@ -224,6 +237,8 @@ class Trainer:
             fps = (self.env_steps - steps0) / max(time.perf_counter() - t0, 1e-9)
             row = {"env_steps": self.env_steps, "updates": self.updates, "episodes": self.episodes,
                    "env_steps_per_s": fps, **self.last_metrics, **self._take_action_stats(), **extra}
+            if self.buffer.dropped:
+                row["buffer_dropped"] = self.buffer.dropped
             self._log(row)
             self._warn(row)
             if not self.progress_enabled:
@@ -231,9 +246,9 @@ class Trainer:
             while self.next_log <= self.env_steps:
                 self.next_log += tc.log_every
         if self.env_steps >= self.next_ckpt:
-            self.save()
-            while self.next_ckpt <= self.env_steps:
+            while self.next_ckpt <= self.env_steps:  # advanced first: the checkpoint records the next one
                 self.next_ckpt += tc.checkpoint_every
+            self.save()
 
     def evaluate(self, refresh_priorities: bool = False) -> dict[str, float]:
         """Track the clips (tracking EMD / success), optionally refresh priorities, plus the custom eval hook."""
@@ -326,7 +341,7 @@ class Trainer:
         self._saved_at = self.env_steps
         for p in prunable_checkpoints(root, tc.keep_checkpoints, tc.keep_every):
             if p != path:
-                shutil.rmtree(p, ignore_errors=True)
+                discard_checkpoint(p)
         return path
 
     def _checkpoint_path(self) -> Path:
@@ -386,13 +401,13 @@ class Trainer:
         self.agent.sync_targets()
 
     def _resume(self) -> None:
-        root = self.out / "checkpoints"
-        latest = root / "latest"
-        if not latest.exists():
-            raise CheckpointError(f"{root}: nothing to resume (no 'latest' pointer)")
-        ckpt = load_checkpoint(root / latest.read_text().strip(), self.device)
+        ckpt = load_checkpoint(latest_checkpoint(self.out / "checkpoints"), self.device)
         load_state_strict(self.agent.model, ckpt.model.state_dict(), str(ckpt.path / "model.safetensors"))
         tensors, meta = ckpt.trainer_state()
+        saved_envs = tensors["env_qpos"].shape[0] if "env_qpos" in tensors else self.cfg.train.num_envs
+        if saved_envs != self.cfg.train.num_envs:
+            raise ConfigError(f"train.num_envs: {self.cfg.train.num_envs}, but {ckpt.path} was saved with "
+                              f"{saved_envs} envs; resume with num_envs: {saved_envs} (or start a new run)")
         self.agent.load_state(tensors, meta)
         try:
             self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
@@ -501,6 +516,48 @@ class _RateColumn(ProgressColumn):
         return Text(f"{task.speed:,.0f}/s" if task.speed else "-/s")
 
 
+#: Bytes per model parameter during training: weights, gradients, two Adam moments and a target copy.
+BYTES_PER_PARAMETER = 20
+
+
+def _memory_bytes(device: torch.device) -> int:
+    """Total memory of the device the model trains on (RAM for the CPU)."""
+    if device.type == "cuda":
+        return int(torch.cuda.get_device_properties(device).total_memory)
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device) -> bool:
+    """Estimate the model's and the replay buffer's memory before allocating either, and raise ConfigError
+    naming the key to lower when they cannot fit, instead of an allocation failing (or the OOM killer striking)
+    minutes later. Returns whether the buffer is memory-mapped (over train.buffer_memmap_mb)."""
+    tc = cfg.train
+    with torch.device("meta"):  # shapes only: no memory is allocated
+        model = get_method(cfg.algorithm).model(cfg.model)
+    params = sum(p.numel() for p in model.parameters())
+    need, have = params * BYTES_PER_PARAMETER, _memory_bytes(device)
+    if need > have:
+        raise ConfigError(f"model: {params / 1e6:,.0f}M parameters need about {need / 2**30:,.1f} GiB to train, "
+                          f"more than the {have / 2**30:,.1f} GiB of {device.type} memory; lower model.hidden_dim, "
+                          "model.hidden_layers or model.preset")
+    specs = transition_specs(cfg.model.obs_dim, cfg.model.action_dim, getattr(model, "z_dim", 0), nq, nv)
+    buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs)
+    memmap = buffer > tc.buffer_memmap_mb * 2**20
+    if memmap:
+        folder = next(p for p in (out, *out.absolute().parents) if p.exists())
+        free = shutil.disk_usage(folder).free
+        if buffer > free:
+            raise ConfigError(f"train.buffer_capacity: the memory-mapped replay buffer needs {buffer / 2**30:,.1f} GiB "
+                              f"on disk, more than the {free / 2**30:,.1f} GiB free at {folder}")
+    else:
+        ram = _memory_bytes(torch.device("cpu"))
+        if buffer + (need if device.type == "cpu" else 0) > ram:
+            raise ConfigError(f"train.buffer_capacity: the replay buffer needs {buffer / 2**30:,.1f} GiB of memory, "
+                              f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
+                              "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
+    return memmap
+
+
 def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Path]:
     """Checkpoints that retention removes: all but the last `keep_last`, sparing those at multiples of
     `keep_every` env steps (0: none spared)."""
@@ -553,10 +610,7 @@ def train(cfg: Config, out_dir: str | Path, resume: bool = False, progress: bool
 
 def checkpoint_env_steps(run_dir: str | Path) -> int:
     """Env steps of a run directory's latest checkpoint (read from its trainer-state header only)."""
-    root = Path(run_dir) / "checkpoints"
-    if not (root / "latest").is_file():
-        raise CheckpointError(f"{run_dir}: no checkpoint to resume (no checkpoints/latest)")
-    path = root / (root / "latest").read_text().strip()
+    path = latest_checkpoint(Path(run_dir) / "checkpoints")
     try:
         return int(read_trainer_meta(path)["env_steps"])
     except KeyError:

@@ -20,6 +20,27 @@ DEFAULT_ACTION_MAPPING = "rest"
 LEGACY_ACTION_MAPPING = "mid"
 
 
+class InvalidActionError(ValueError):
+    """An action that is not a finite array of numbers of the expected shape; the message names the action."""
+
+
+def check_action(action: object, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """The action as a float64 array, checked for shape and finiteness before any clipping (which would turn
+    +inf into a valid 1); `name` ("action", "actions") starts every message."""
+    try:
+        a = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidActionError(f"{name} must be numbers, got {type(action).__name__} "
+                                 f"of {np.asarray(action).dtype}") from None
+    if a.shape != shape:
+        raise InvalidActionError(f"{name} must have shape {shape}, got {a.shape}")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        where = f" (envs {np.flatnonzero(bad.any(axis=1)).tolist()})" if a.ndim == 2 else ""
+        raise InvalidActionError(f"{name} contain NaN or inf{where}" if a.ndim == 2 else f"{name} contains NaN or inf")
+    return a
+
+
 class ActionMap:
     """Maps actions to PD targets (``to_ctrl``) and joint angles back to actions (``from_angles``)."""
 

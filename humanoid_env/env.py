@@ -13,7 +13,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap
+from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap, check_action
 from humanoid_env.model import N_SUBSTEPS, NQ, NU, NV, load_model
 from humanoid_env.observation import OBS_DIM, assemble, read_kinematics
 
@@ -137,7 +137,10 @@ class HumanoidEnv(gym.Env):
         self.data.time = EPISODE_START_TIME
         mujoco.mj_forward(self.model, self.data)
         self._steps = 0
-        self._obs = self._observe()
+        obs = self._observe()
+        if not np.isfinite(obs).all():
+            raise ValueError("reset: the state's observation is not finite (qpos/qvel beyond float32 range?)")
+        self._obs = obs
         return self._obs, self._info(False)
 
     def _diverged(self, obs: np.ndarray) -> bool:
@@ -147,12 +150,7 @@ class HumanoidEnv(gym.Env):
         return not (np.abs(self.data.qvel).max() <= self.max_qvel and np.isfinite(obs.sum()))  # NaN fails <=
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
-        a = np.asarray(action)
-        if a.shape != (NU,):
-            raise ValueError(f"action must have shape ({NU},), got {a.shape}")
-        np.clip(a, -1.0, 1.0, out=self._act)
-        if not np.isfinite(self._act.sum()):
-            raise ValueError("action contains NaN or inf")
+        np.clip(check_action(action, (NU,), "action"), -1.0, 1.0, out=self._act)
         self.action_map.to_ctrl(self._act, out=self.data.ctrl)
         mujoco.mj_step(self.model, self.data, nstep=N_SUBSTEPS)
         self._steps += 1

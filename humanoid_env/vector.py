@@ -30,7 +30,7 @@ from humanoid_env.env import (
     check_state,
     resolve_reward,
 )
-from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap
+from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap, check_action
 from humanoid_env.model import N_SUBSTEPS, NU, load_model
 from humanoid_env.observation import N_BODIES, OBS_DIM, assemble
 
@@ -98,7 +98,12 @@ class VectorHumanoidEnv(VectorEnv):
         self._time[ids] = EPISODE_START_TIME
         self.batch.warning[ids] = 0
         self.batch.forward(ids, stage=_VEL)
-        self._obs[ids] = self._observe(ids)
+        obs = self._observe(ids)
+        bad = ~np.isfinite(obs).all(axis=1)
+        if bad.any():
+            raise ValueError(f"reset: the observation of envs {np.asarray(ids)[bad].tolist()} is not finite "
+                             "(qpos/qvel beyond float32 range?)")
+        self._obs[ids] = obs
         self._good_qpos[ids], self._good_qvel[ids] = qpos, qvel
         self._steps[ids] = 0
 
@@ -128,12 +133,7 @@ class VectorHumanoidEnv(VectorEnv):
         return np.zeros(self.num_envs, bool)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        a = np.asarray(actions)
-        if a.shape != (self.num_envs, NU):
-            raise ValueError(f"actions must have shape ({self.num_envs}, {NU}), got {a.shape}")
-        np.clip(a, -1.0, 1.0, out=self._act)
-        if not np.isfinite(self._act.sum()):
-            raise ValueError(f"actions contain NaN or inf (envs {np.flatnonzero(~np.isfinite(self._act).all(1)).tolist()})")
+        np.clip(check_action(actions, (self.num_envs, NU), "actions"), -1.0, 1.0, out=self._act)
         self.action_map.to_ctrl(self._act, out=self._ctrl)
         failed = self._advance()
 

@@ -11,9 +11,13 @@ import numpy as np
 
 from humanoid_env.model import NQ, NV, CONTROL_HZ
 from humanoid_env.observation import OBS_DIM
+from motions.limits import max_clip_frames, too_long
+from motions.npz import read_npz
 
 FPS = CONTROL_HZ
 MIN_FRAMES = 2
+#: Fastest root motion a clip may have (m/s): well above a sprint (about 12 m/s), far below a 50 m teleport.
+MAX_ROOT_SPEED = 30.0
 _KEYS = ("qpos", "qvel", "obs", "fps", "name", "source", "license")
 
 
@@ -79,6 +83,16 @@ def validate_arrays(qpos: np.ndarray, qvel: np.ndarray, obs: np.ndarray, fps: in
         raise ClipFormatError(f"{where}: clip has {qpos.shape[0]} frames, at least {MIN_FRAMES} are needed")
     if fps != FPS:
         raise ClipFormatError(f"{where}: fps must be {FPS}, got {fps}")
+    if qpos.shape[0] > max_clip_frames():
+        raise ClipFormatError(too_long(qpos.shape[0] / fps, where))
+    speed = np.linalg.norm(np.diff(qpos[:, :3], axis=0), axis=1) * fps
+    if np.any(speed > MAX_ROOT_SPEED):
+        raise ClipFormatError(f"{where}: root moves {speed.max():.3g} m/s between frames {int(np.argmax(speed))} and "
+                              f"{int(np.argmax(speed)) + 1}, faster than {MAX_ROOT_SPEED:g} m/s (a teleport?)")
+    vel = np.linalg.norm(qvel[:, :3], axis=1)
+    if np.any(vel > MAX_ROOT_SPEED):
+        raise ClipFormatError(f"{where}: root velocity qvel[:, :3] reaches {vel.max():.3g} m/s at frame "
+                              f"{int(np.argmax(vel))}, faster than {MAX_ROOT_SPEED:g} m/s")
     norms = np.linalg.norm(qpos[:, 3:7], axis=1)
     if np.any(np.abs(norms - 1.0) > 1e-3):
         raise ClipFormatError(f"{where}: root quaternion qpos[:, 3:7] is not unit length (norms {norms.min():.3f}..{norms.max():.3f})")
@@ -111,18 +125,15 @@ def save_clip(clip: Clip, path: str | os.PathLike) -> Path:
 def load_clip(path: str | os.PathLike) -> Clip:
     """Load and validate a clip; never unpickles. Errors name the file and what is wrong."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ClipFormatError(f"{path}: no such clip file")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in _KEYS if k not in data.files]
-            if missing:
-                raise ClipFormatError(f"{path}: missing keys {missing}")
-            arrays = {k: data[k] for k in _KEYS}
-    except ClipFormatError:
-        raise
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
-        raise ClipFormatError(f"{path}: not a readable clip .npz ({err})") from None
+        arrays = read_npz(path, _KEYS, ClipFormatError, "clip archive", max_rows=max_clip_frames())
+    except ClipFormatError as err:
+        raise ClipFormatError(f"{err}{_import_hint(path)}") from None
+    missing = [k for k in _KEYS if k not in arrays]
+    if missing:
+        raise ClipFormatError(f"{path}: missing keys {missing}{_import_hint(path)}")
     for key in ("name", "source", "license"):
         if arrays[key].ndim != 0 or arrays[key].dtype.kind != "U":
             raise ClipFormatError(f"{path}: {key} must be a string")
@@ -138,17 +149,30 @@ def load_clip(path: str | os.PathLike) -> Clip:
     )
 
 
+def _import_hint(path: Path) -> str:
+    """A pointer to the importer when a file that is not a clip is a motion file the importers read."""
+    from motions.importers import UnknownFormatError, detect_format
+
+    try:
+        fmt = detect_format(path)
+        if fmt == "amass":
+            with zipfile.ZipFile(path) as zf:
+                if "poses.npy" not in zf.namelist():
+                    return ""
+    except (UnknownFormatError, zipfile.BadZipFile, OSError):
+        return ""
+    return f"; it is a {fmt} motion file: import it first with `fbcpr motions import`"
+
+
 def _check_obs_current(qpos: np.ndarray, qvel: np.ndarray, obs: np.ndarray, where: str) -> None:
-    """Recompute a few frames' observations: a clip made by an older observation function must be re-imported,
-    not silently fed to a model trained on the current one."""
+    """Recompute every frame's observation (batched, so cheap): a clip made by an older observation function, or
+    with corrupted frames, must be re-imported, not silently fed to a model trained on the current one."""
     from humanoid_env.model import load_model
     from humanoid_env.observation import observe
 
-    frames = np.unique([0, len(qpos) // 2, len(qpos) - 1])
-    fresh = observe(load_model(), qpos[frames], qvel[frames])
-    err = np.abs(fresh - obs[frames]).max()
-    if err > 1e-3:
+    diff = np.abs(observe(load_model(), qpos, qvel) - obs).max(axis=1)
+    if diff.max() > 1e-3:
         raise ClipFormatError(
-            f"{where}: obs do not match the humanoid's observation function (max difference {err:.3g}); "
-            "the clip was made by another version: re-import it"
+            f"{where}: obs do not match the humanoid's observation function (difference {diff.max():.3g}, first at "
+            f"frame {int(np.argmax(diff > 1e-3))}); the clip was made by another version or is damaged: re-import it"
         )

@@ -106,7 +106,7 @@ def test_out_of_range_angles_are_clipped_and_counted(tmp_path):
         (dict(poses=np.zeros((5, 60)), trans=np.zeros((5, 3)), mocap_framerate=30.0), "poses must be a float array (T, >=72)"),
         (dict(poses=np.zeros((5, 72)), trans=np.zeros((4, 3)), mocap_framerate=30.0), "trans must be float (T, 3)"),
         (dict(poses=np.full((5, 72), np.nan), trans=np.zeros((5, 3)), mocap_framerate=30.0), "NaN or inf"),
-        (dict(poses=np.zeros((5, 72)), trans=np.zeros((5, 3)), mocap_framerate=-1.0), "positive number"),
+        (dict(poses=np.zeros((5, 72)), trans=np.zeros((5, 3)), mocap_framerate=-1.0), "outside"),
     ],
 )
 def test_malformed_amass_files(tmp_path, arrays, message):

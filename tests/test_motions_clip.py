@@ -117,7 +117,7 @@ def test_malformed_clip_files_are_rejected_with_the_file_and_the_problem(tmp_pat
 def test_non_npz_and_pickled_files_are_rejected(tmp_path):
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"PK\x03\x04 definitely not a zip")
-    with pytest.raises(ClipFormatError, match="not a readable clip"):
+    with pytest.raises(ClipFormatError, match="not a valid clip archive"):
         load_clip(junk)
     arrays = _good_arrays(_clip())
     arrays["name"] = np.array(["x"], dtype=object)  # object arrays need pickle

@@ -16,6 +16,7 @@ import numpy as np
 
 from motions.clip import FPS, Clip, ClipFormatError, from_qpos, load_clip, save_clip
 from motions.kinematics import repeat_loop
+from motions.limits import check_input_file
 from motions.retarget import Retargeter, RetargetReport
 
 FORMATS = ("amass", "deepmimic", "bvh")
@@ -30,6 +31,7 @@ class UnknownFormatError(ValueError):
 def detect_format(path: str | os.PathLike) -> str:
     """'amass', 'deepmimic' or 'bvh', judged from the file's first bytes (not its name)."""
     path = Path(path)
+    check_input_file(path, UnknownFormatError)
     try:
         with open(path, "rb") as fh:
             head = fh.read(512)

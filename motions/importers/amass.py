@@ -11,7 +11,6 @@ is (metres) and the clip is then put on the floor with the same foot-contact gro
 """
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,8 @@ from scipy.spatial.transform import Rotation
 
 from humanoid_env.model import BODY_NAMES, JOINT_NAMES, joint_ranges, load_model
 from motions.kinematics import resample_qpos
+from motions.limits import MIN_FRAME_SECONDS, check_frame_times, max_clip_seconds
+from motions.npz import read_npz
 from motions.retarget import RetargetReport, floor_metrics, ground_shift
 
 #: SMPL joint index for each of our non-root bodies, in BODY_NAMES[1:] order.
@@ -42,20 +43,15 @@ class AmassFormatError(ValueError):
 def read_amass(path: str | Path) -> tuple[np.ndarray, np.ndarray, float]:
     """(poses (T,72+), trans (T,3), fps), validated; never unpickles."""
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            keys = set(data.files)
-            for key in ("poses", "trans"):
-                if key not in keys:
-                    raise AmassFormatError(f"{path}: missing {key!r} (AMASS files have poses, trans, mocap_framerate)")
-            rate_key = next((k for k in ("mocap_framerate", "mocap_frame_rate") if k in keys), None)
-            if rate_key is None:
-                raise AmassFormatError(f"{path}: missing 'mocap_framerate'")
-            poses, trans, fps = data["poses"], data["trans"], data[rate_key]
-    except AmassFormatError:
-        raise
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
-        raise AmassFormatError(f"{path}: not a readable .npz ({err})") from None
+    data = read_npz(path, ("poses", "trans", "mocap_framerate", "mocap_frame_rate"), AmassFormatError, "AMASS .npz",
+                    max_rows=int(max_clip_seconds() / MIN_FRAME_SECONDS) + 1)
+    for key in ("poses", "trans"):
+        if key not in data:
+            raise AmassFormatError(f"{path}: missing {key!r} (AMASS files have poses, trans, mocap_framerate)")
+    fps = data.get("mocap_framerate", data.get("mocap_frame_rate"))
+    if fps is None:
+        raise AmassFormatError(f"{path}: missing 'mocap_framerate'")
+    poses, trans = data["poses"], data["trans"]
     if poses.ndim != 2 or poses.shape[1] < 72 or poses.dtype.kind != "f":
         raise AmassFormatError(f"{path}: poses must be a float array (T, >=72), got {poses.dtype} {poses.shape}")
     if trans.shape != (poses.shape[0], 3) or trans.dtype.kind != "f":
@@ -64,8 +60,10 @@ def read_amass(path: str | Path) -> tuple[np.ndarray, np.ndarray, float]:
         raise AmassFormatError(f"{path}: needs at least 2 frames, got {poses.shape[0]}")
     if not (np.all(np.isfinite(poses)) and np.all(np.isfinite(trans))):
         raise AmassFormatError(f"{path}: poses or trans contain NaN or inf")
-    if fps.size != 1 or fps.dtype.kind not in "fiu" or not np.isfinite(fps) or float(fps) <= 0:
-        raise AmassFormatError(f"{path}: mocap_framerate must be a positive number, got {fps!r}")
+    if fps.size != 1 or fps.dtype.kind not in "fiu":
+        raise AmassFormatError(f"{path}: mocap_framerate must be a number, got {fps!r}")
+    check_frame_times(1.0 / float(fps) if float(fps) != 0 else np.inf, str(path), AmassFormatError,
+                      repeats=poses.shape[0] - 1)
     return poses.astype(np.float64), trans.astype(np.float64), float(fps)
 
 

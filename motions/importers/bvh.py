@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from motions.limits import MAX_BVH_DEPTH, check_frame_times, read_text
 from motions.retarget import SourceMotion
 
 #: keypoint -> candidate joint names (lower case, tried in order).
@@ -83,8 +84,16 @@ def parse_bvh(text: str, where: str = "BVH") -> tuple[list[Joint], np.ndarray, f
     take()
     joints: list[Joint] = []
 
-    def parse_joint(parent: int, end_site: bool) -> None:
+    def count() -> int:
+        value = number()
+        if not (np.isfinite(value) and value == int(value) and value >= 0):
+            raise BvhFormatError(f"{where}: expected a count, got {value:g}")
+        return int(value)
+
+    def parse_joint(parent: int, end_site: bool, depth: int) -> None:
         name = "End Site" if end_site else take()
+        if depth > MAX_BVH_DEPTH:
+            raise BvhFormatError(f"{where}: joints nested more than {MAX_BVH_DEPTH} deep (at joint {name})")
         if end_site and take() != "Site":
             raise BvhFormatError(f"{where}: malformed End Site")
         if take() != "{":
@@ -99,29 +108,29 @@ def parse_bvh(text: str, where: str = "BVH") -> tuple[list[Joint], np.ndarray, f
             if tok == "}":
                 return
             if tok == "CHANNELS" and not end_site:
-                count = int(number())
-                joint.channels = [take() for _ in range(count)]
+                joint.channels = [take() for _ in range(count())]
                 bad = [c for c in joint.channels if c[1:] not in ("position", "rotation") or c[0] not in "XYZ"]
                 if bad:
                     raise BvhFormatError(f"{where}: joint {name} has unknown channels {bad}")
             elif tok == "JOINT" and not end_site:
-                parse_joint(me, False)
+                parse_joint(me, False, depth + 1)
             elif tok == "End" and not end_site:
-                parse_joint(me, True)
+                parse_joint(me, True, depth + 1)
             else:
                 raise BvhFormatError(f"{where}: unexpected {tok!r} in joint {name}")
 
     if take() != "ROOT":
         raise BvhFormatError(f"{where}: HIERARCHY must begin with ROOT")
-    parse_joint(-1, False)
+    parse_joint(-1, False, 0)
     if take() != "MOTION" or take() != "Frames:":
         raise BvhFormatError(f"{where}: expected 'MOTION' and 'Frames:' after the hierarchy")
-    n_frames = int(number())
+    n_frames = count()
     if take() != "Frame" or take() != "Time:":
         raise BvhFormatError(f"{where}: expected 'Frame Time:'")
     frame_time = number()
-    if not frame_time > 0:
-        raise BvhFormatError(f"{where}: frame time must be positive, got {frame_time}")
+    if n_frames < 2:
+        raise BvhFormatError(f"{where}: needs at least 2 frames, got {n_frames}")
+    check_frame_times(frame_time, where, BvhFormatError, repeats=n_frames - 1)
     n_channels = sum(len(j.channels) for j in joints)
     rest = tokens[pos:]
     if len(rest) != n_frames * n_channels:
@@ -131,10 +140,10 @@ def parse_bvh(text: str, where: str = "BVH") -> tuple[list[Joint], np.ndarray, f
         values = np.array(rest, dtype=np.float64).reshape(n_frames, n_channels)
     except ValueError:
         raise BvhFormatError(f"{where}: motion data contains non-numeric values") from None
+    except MemoryError:
+        raise BvhFormatError(f"{where}: motion data too large to load into memory") from None
     if not np.all(np.isfinite(values)):
         raise BvhFormatError(f"{where}: motion data contains NaN or inf")
-    if n_frames < 2:
-        raise BvhFormatError(f"{where}: needs at least 2 frames, got {n_frames}")
     return joints, values, frame_time
 
 
@@ -182,10 +191,7 @@ def load_bvh(path: str | Path, up_axis: str = "y", joint_map: dict[str, str] | N
     unknown = sorted(set(joint_map) - set(NAMES))
     if unknown:
         raise BvhFormatError(f"joint map: unknown keypoint {unknown[0]!r} (keypoints: {', '.join(NAMES)})")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as err:
-        raise BvhFormatError(f"{path}: cannot read ({err})") from None
+    text = read_text(path, BvhFormatError)
     joints, values, frame_time = parse_bvh(text, str(path))
     world = forward_kinematics(joints, values)
     if up_axis == "y":

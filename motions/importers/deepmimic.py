@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from motions.limits import check_frame_times, read_text
 from motions.retarget import SourceMotion
 
 N_VALUES = 44
@@ -48,10 +49,15 @@ def _quat(rows: np.ndarray, path: Path, what: str) -> Rotation:
 def read_frames(path: str | Path) -> tuple[np.ndarray, bool]:
     """(T,44) frame rows and the loop flag, validated."""
     path = Path(path)
+    text = read_text(path, DeepMimicFormatError)
     try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        doc = json.loads(text)
+    except json.JSONDecodeError as err:
         raise DeepMimicFormatError(f"{path}: not a readable DeepMimic JSON file ({err})") from None
+    except RecursionError:
+        raise DeepMimicFormatError(f"{path}: not a DeepMimic JSON file (nested too deeply)") from None
+    except MemoryError:
+        raise DeepMimicFormatError(f"{path}: too large to read into memory") from None
     if not isinstance(doc, dict) or "Frames" not in doc:
         raise DeepMimicFormatError(f"{path}: no \"Frames\" list")
     rows = doc["Frames"]
@@ -66,8 +72,7 @@ def read_frames(path: str | Path) -> tuple[np.ndarray, bool]:
         raise DeepMimicFormatError(f"{path}: frames contain non-numeric values") from None
     if not np.all(np.isfinite(frames)):
         raise DeepMimicFormatError(f"{path}: frames contain NaN or inf")
-    if np.any(frames[:-1, 0] <= 0) or frames[-1, 0] < 0:
-        raise DeepMimicFormatError(f"{path}: frame durations must be positive")
+    check_frame_times(frames[:-1, 0], str(path), DeepMimicFormatError)  # the last frame's duration is unused
     loop = doc.get("Loop", "none")
     if loop not in ("wrap", "none"):
         raise DeepMimicFormatError(f"{path}: \"Loop\" must be \"wrap\" or \"none\", got {loop!r}")
