@@ -100,8 +100,8 @@ def test_malformed_deepmimic_files(tmp_path):
         "truncated.txt": ('{"Loop": "wrap", "Frames": [[0.1, 2', "not a readable DeepMimic JSON"),
         "short_row.txt": (json.dumps({"Loop": "none", "Frames": [good_row, good_row[:40]]}), "frame 1 does not have 44 numbers"),
         "nan.txt": (json.dumps({"Loop": "none", "Frames": [good_row, good_row]}).replace("0.9", "NaN", 1), "NaN or inf"),
-        "zero_quat.txt": (json.dumps({"Loop": "none", "Frames": [good_row, good_row[:4] + [0, 0, 0, 0] + good_row[8:]]}), "root quaternion has zero length"),
-        "bad_loop.txt": (json.dumps({"Loop": "sometimes", "Frames": [good_row, good_row]}), '"Loop" must be'),
+        "zero_quat.txt": (json.dumps({"Loop": "none", "Frames": [good_row, good_row, good_row[:4] + [0, 0, 0, 0] + good_row[8:]]}), "root quaternion has zero length"),
+        "bad_loop.txt": (json.dumps({"Loop": "sometimes", "Frames": [good_row] * 3}), '"Loop" must be'),
         "no_frames.txt": (json.dumps({"Loop": "none"}), 'no "Frames"'),
     }
     for fname, (text, message) in cases.items():
