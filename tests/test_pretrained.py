@@ -12,7 +12,7 @@ from fbcpr.bfm import PRETRAINED_DIR
 from fbcpr.cli.app import app
 
 torch.set_num_threads(1)
-MAX_BYTES = 25 * 2**20
+MAX_BYTES = 25_000_000  # "at most 25 MB"
 
 
 def test_ships_within_budget_with_a_float16_reward_subsample_and_a_model_card():
