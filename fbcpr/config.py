@@ -106,7 +106,7 @@ class EnvConfig:
     """Which environment and demonstrations; the trainer only sees what `fbcpr.envs.make_env` builds."""
 
     name: str = _f("humanoid", _check(lambda v: v in ("humanoid", "toy"), "must be 'humanoid' or 'toy'"))
-    motions: str = _f("synthetic")  # humanoid: a folder of clips; toy: "synthetic" (all demos) or demo names
+    motions: str = _f("synthetic")  # humanoid: a folder of clips or one clip .npz; toy: "synthetic" (all demos) or demo names
     fall_prob: float = _f(0.2, PROB)
     max_episode_steps: int = _f(300, _range(1, 10**7))
     action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))

@@ -97,8 +97,9 @@ def _humanoid(cfg: EnvConfig, num_envs: int) -> EnvBundle:
     else:
         path = Path(cfg.motions)
         if not path.exists():
-            raise FileNotFoundError(f"env.motions: {path} does not exist (give a folder of clip .npz files or 'synthetic')")
-        lib = MotionLibrary.load(path)
+            raise FileNotFoundError(f"env.motions: {path} does not exist (give a clip .npz, a folder of them or "
+                                    "'synthetic')")
+        lib = MotionLibrary.load([path] if path.is_file() else path)  # one clip: single-demonstration imitation
     from fbcpr.evaluation.metrics import emd, tracking_success
 
     def task_reward(name: str) -> TaskReward:

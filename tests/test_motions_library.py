@@ -87,3 +87,14 @@ def test_load_folder_and_errors(tmp_path):
         MotionLibrary.load(tmp_path / "empty")
     with pytest.raises(FileNotFoundError, match="not a folder"):
         MotionLibrary.load(tmp_path / "nope")
+
+
+def test_env_motions_takes_one_clip_file_for_single_demonstration_imitation(tmp_path):
+    from fbcpr.config import EnvConfig
+    from fbcpr.envs import make_env
+
+    for c in (_clip("x", 40, 1.0), _clip("y", 60, 1.0)):
+        save_clip(c, tmp_path / f"{c.name}.npz")
+    one = make_env(EnvConfig(name="humanoid", motions=str(tmp_path / "y.npz")), 2, 0)
+    assert one.library.names == ["y"]
+    assert make_env(EnvConfig(name="humanoid", motions=str(tmp_path)), 2, 0).library.names == ["x", "y"]
