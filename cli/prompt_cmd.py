@@ -211,15 +211,19 @@ def track_command(
     video: Optional[Path] = typer.Option(None, "--video", help=VIDEO_HELP + " Agent left, reference right."),
     device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
 ) -> None:
-    """Track a clip with one z per step and print tracking success (d_smpl <= 0.5 throughout) and EMD."""
+    """Track a clip with one z per step and print tracking success (d_smpl <= 0.5 throughout) and EMD.
+
+    CKPT is a BFM (z's from ER_FB of the next states) or an NPMP checkpoint (z's from its encoder)."""
     from fbcpr.evaluation.metrics import d_smpl, emd, tracking_success
 
     if video is not None:
         require_renderer()
+    from fbcpr.evaluation.agents import load_tracker
+
     clip = _load_clip(clip_path)
-    bfm = _load(ckpt, device)
-    zs = bfm.prompt.track(clip)
-    ep = rollout(bfm, zs, start=(clip.qpos[0], clip.qvel[0]), video=video is not None, reference=clip,
+    agent = load_tracker(ckpt, device)  # a BFM (ER_FB latents) or an NPMP (its encoder's latents)
+    zs = agent.track_z(clip)
+    ep = rollout(agent, zs, start=(clip.qpos[0], clip.qvel[0]), video=video is not None, reference=clip,
                  label=f"track {clip.name}")
     agent = np.stack(ep.obs)
     ref = clip.obs[: len(agent)]

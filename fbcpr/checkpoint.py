@@ -33,7 +33,7 @@ from safetensors.torch import load_file, save_file
 
 import fbcpr
 from fbcpr.config import Config, ConfigError, ModelConfig, config_from_dict, config_to_dict, model_config_from_dict
-from fbcpr.methods import DEFAULT_ALGORITHM, get_method
+from fbcpr.methods import DEFAULT_ALGORITHM, METHODS, get_method
 from humanoid_env.actions import LEGACY_ACTION_MAPPING
 
 FORMAT = "fbcpr-checkpoint"
@@ -293,6 +293,10 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
     if not path.is_dir():
         raise CheckpointError(f"{path}: not a checkpoint directory")
     manifest = read_manifest(path / MANIFEST_FILE)
+    recorded = manifest.get("algorithm", DEFAULT_ALGORITHM)
+    if recorded not in METHODS:
+        raise CheckpointError(f"{path}: holds a {recorded!r} model, not an agent of `fbcpr train` (an NPMP checkpoint "
+                              "tracks clips: `fbcpr track`, `fbcpr eval --suite tracking`)")
     _verify(path / CONFIG_FILE, manifest)
     try:
         data = yaml.safe_load((path / CONFIG_FILE).read_text())

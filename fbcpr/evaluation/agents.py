@@ -1,7 +1,7 @@
 """What the benchmark evaluates: any object with `act` plus the three prompt functions.
 
 Built in: the floor baselines RandomAgent and ZeroAgent (they ignore z). A loaded `fbcpr.BFM` is an Agent as
-it is; a single-task checkpoint (TD3, on a task or an imitation reward) is wrapped as a `SingleTaskAgent`, which is
+it is; an NPMP checkpoint is an `fbcpr.npmp.agent.NPMPAgent` (tracking only); a single-task checkpoint (TD3, on a task or an imitation reward) is wrapped as a `SingleTaskAgent`, which is
 evaluated on its own task. Later baselines plug in by offering the same methods.
 """
 from __future__ import annotations
@@ -101,8 +101,9 @@ def action_mapping(agent: object) -> str:
     return str(getattr(agent, "action_mapping", DEFAULT_ACTION_MAPPING))
 
 
-def make_agent(spec: str, seed: int = 0) -> Agent:
-    """`random`, `zero`, or a checkpoint path / hub id: a `fbcpr.BFM` for FB-CPR, a `SingleTaskAgent` otherwise."""
+def make_agent(spec: str, seed: int = 0, device: str = "cpu") -> Agent:
+    """`random`, `zero`, or a checkpoint path / hub id: a `fbcpr.BFM` for FB-CPR, an `NPMPAgent` for an NPMP, a
+    `SingleTaskAgent` otherwise."""
     if spec == "random":
         return RandomAgent(seed)
     if spec == "zero":
@@ -112,7 +113,33 @@ def make_agent(spec: str, seed: int = 0) -> Agent:
     from fbcpr.checkpoint import load_checkpoint
     from fbcpr.methods import get_method
 
-    ckpt = load_checkpoint(resolve_checkpoint(spec))
+    path = resolve_checkpoint(spec)
+    npmp = _npmp_agent(path, spec, device)
+    if npmp is not None:
+        return npmp
+    ckpt = load_checkpoint(path, device)
     if get_method(ckpt.algorithm).promptable:
         return BFM(ckpt.model, ckpt.config, source=spec, checkpoint=ckpt)
     return SingleTaskAgent(ckpt, spec)
+
+
+def load_tracker(spec: str, device: str = "cpu") -> Agent:
+    """A model that tracks a clip with one z per step (`track_z`, then `act`): a `BFM`, or an `NPMPAgent` whose
+    encoder gives the z's. Any other checkpoint is refused by `BFM.load` with its reason."""
+    from fbcpr import BFM
+    from fbcpr.bfm import resolve_checkpoint
+
+    path = resolve_checkpoint(spec)
+    npmp = _npmp_agent(path, spec, device)
+    return npmp if npmp is not None else BFM.load(path, device=device)
+
+
+def _npmp_agent(path: Any, spec: str, device: str) -> Agent | None:
+    """The NPMP agent of a checkpoint directory whose manifest records `algorithm: npmp`, else None."""
+    from fbcpr.npmp.checkpoint import is_npmp_checkpoint
+
+    if not is_npmp_checkpoint(path):
+        return None
+    from fbcpr.npmp.agent import NPMPAgent
+
+    return NPMPAgent(path, device, name=spec)
