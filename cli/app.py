@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import typer
 
-from fbcpr.cli import common, demo_cmd, env_cmd, eval_cmd, export_cmd, motions_cmd, prompt_cmd, tasks_cmd, train_cmd
+from fbcpr.cli import (common, demo_cmd, env_cmd, eval_cmd, export_cmd, motions_cmd, npmp_cmd, prompt_cmd, tasks_cmd,
+                       train_cmd)
 
 app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid.", no_args_is_help=True,
                   cls=common.HelpGroup)
@@ -19,6 +20,7 @@ tasks_cmd.register(app)
 motions_cmd.register(app)
 export_cmd.register(app)
 env_cmd.register(app)
+npmp_cmd.register(app)
 
 
 def main() -> None:

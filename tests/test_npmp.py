@@ -192,3 +192,35 @@ def test_distill_checkpoints_resume_and_track(bc_data, tmp_path):
         load_checkpoint(path)
     with pytest.raises(ConfigError, match="npmp.alpha"):
         npmp_config({"alpha": 1.0})
+
+
+def test_cli_distill_resume_track_and_eval(bfm, library, tmp_path):
+    from typer.testing import CliRunner
+
+    from fbcpr.checkpoint import save_checkpoint
+    from fbcpr.cli.app import app
+    from motions.clip import save_clip
+
+    expert = save_checkpoint(tmp_path / "bfm", bfm.model, bfm.config)
+    clips = tmp_path / "clips"
+    for clip in library.clips:
+        save_clip(clip, clips / f"{clip.name}.npz")
+    run = tmp_path / "npmp"
+    base = ["npmp", "distill", str(expert), "--motions", str(clips), "--out", str(run), "--method", "lfpc",
+            "--preset", "tiny", "--max-steps", "3", "--checkpoint-every", "1"]
+    res = CliRunner().invoke(app, base + ["--steps", "2"])
+    assert res.exit_code == 0, res.output
+    assert (run / "data.safetensors").is_file() and (run / "checkpoints" / "step_00000002").is_dir()
+    res = CliRunner().invoke(app, base + ["--steps", "3", "--resume"])
+    assert res.exit_code == 0 and "3 gradient steps" in res.output, res.output
+    res = CliRunner().invoke(app, [a if a != "lfpc" else "bc" for a in base] + ["--steps", "4", "--resume"])
+    assert res.exit_code == 1 and "holds lfpc data" in res.output
+    res = CliRunner().invoke(app, ["track", str(run), str(clips / "arm_swing.npz")])
+    assert res.exit_code == 0 and "tracking success" in res.output and "EMD" in res.output, res.output
+    res = CliRunner().invoke(app, ["npmp", "eval", str(run), "--motions", str(clips), "--out", str(tmp_path / "ev")])
+    assert res.exit_code == 0, res.output
+    import json
+
+    result = json.loads((tmp_path / "ev" / "results.json").read_text())
+    assert set(result["clips"]) == {"arm_swing", "stand"} and result["summary"]["train"]["clips"] == 2
+    assert all(c["relative_emd"] > 0 for c in result["clips"].values())

@@ -29,7 +29,7 @@ class NPMPConfig:
 
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
-    "cpu": dict(encoder_hidden=256, decoder_hidden=256, seq_length=16, batch_size=64, lr=3e-4),
+    "cpu": dict(encoder_hidden=256, decoder_hidden=256, seq_length=8, batch_size=64, lr=3e-4),
     "tiny": dict(latent_dim=4, horizon=2, encoder_hidden=16, encoder_layers=1, decoder_hidden=16, decoder_layers=1,
                  seq_length=4, batch_size=4, lr=1e-3),
 }

@@ -84,7 +84,7 @@ class Distiller:
         out["loss"].backward()
         self.opt.step()
         self.steps += 1
-        return {k: float(v) for k, v in out.items()}
+        return {k: float(v.detach()) for k, v in out.items()}
 
     def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:
         tensors: dict[str, Tensor] = {"generator": self.gen.get_state()}
