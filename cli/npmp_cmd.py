@@ -2,7 +2,6 @@
 `fbcpr npmp eval` (one-shot tracking relative to the expert)."""
 from __future__ import annotations
 
-import json
 import time
 from enum import Enum
 from pathlib import Path
@@ -110,31 +109,43 @@ def _collect(expert: str, motions: Path, method: str, rollouts: int, noise: floa
 @app.command("eval")
 @cli_errors
 def eval_command(
-    ckpt: str = typer.Argument(..., help="NPMP run directory or checkpoint."),
+    ckpts: list[str] = typer.Argument(..., help="NPMP run directories or checkpoints (the expert tracks once)."),
     motions: Path = typer.Option(..., "--motions", help="Folder of clip .npz files to track."),
     expert: Optional[str] = typer.Option(None, "--expert", help="The expert to compare with (default: the BFM the "
-                                         "NPMP was distilled from)."),
+                                         "NPMPs were distilled from)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write results.json here."),
 ) -> None:
-    """One-shot tracking of every clip by the NPMP and by its expert: EMD, success, and the NPMP relative to the
+    """One-shot tracking of every clip by each NPMP and by the expert: EMD, success, and each NPMP relative to the
     expert (EMD_expert / EMD_npmp), on the clips it was distilled on and on held-out ones."""
     from fbcpr.bfm import BFM
     from fbcpr.evaluation.agents import load_tracker
-    from fbcpr.evaluation.runner import write_json
+    from fbcpr.evaluation.runner import tracking_suite, write_json
     from fbcpr.npmp.agent import NPMPAgent
-    from fbcpr.npmp.evaluate import compare_with_expert
+    from fbcpr.npmp.evaluate import relative_to_expert
     from motions.library import MotionLibrary
 
-    agent = load_tracker(ckpt)
-    if not isinstance(agent, NPMPAgent):
-        raise ValueError(f"{ckpt}: not an NPMP checkpoint (`fbcpr eval` scores a BFM)")
-    teacher = BFM.load(expert or agent.info.get("expert", "pretrained"))
+    agents = [load_tracker(c) for c in ckpts]
+    for c, agent in zip(ckpts, agents):
+        if not isinstance(agent, NPMPAgent):
+            raise ValueError(f"{c}: not an NPMP checkpoint (`fbcpr eval` scores a BFM)")
+    recorded = {str(a.info.get("expert", "pretrained")) for a in agents}
+    if expert is None and len(recorded) > 1:
+        raise ValueError(f"the NPMPs were distilled from different experts {sorted(recorded)}: choose one with --expert")
+    expert = expert or recorded.pop()
     library = MotionLibrary.load(motions)
     with progress() as bar:
-        result = compare_with_expert(agent, teacher, library.clips, agent.info.get("clips", []), bar)
-    result.update({"npmp": ckpt, "expert": expert or agent.info.get("expert"), "method": agent.info.get("method"),
-                   "steps": agent.info.get("steps")})
-    table = Table(title=f"NPMP ({agent.info.get('method')}) vs expert: one-shot tracking")
+        teacher = tracking_suite(BFM.load(expert), library.clips, bar)
+        results = {c: relative_to_expert(tracking_suite(a, library.clips, bar), teacher, a.info.get("clips", []))
+                   for c, a in zip(ckpts, agents)}
+    for c, agent in zip(ckpts, agents):
+        results[c].update({"method": agent.info.get("method"), "steps": agent.info.get("steps")})
+        console.print(_table(f"{c} ({agent.info.get('method')}) vs expert {expert}: one-shot tracking", results[c]))
+    if out is not None:
+        console.print(f"results written to [bold]{write_json({'expert': expert, 'npmp': results}, out)}[/]")
+
+
+def _table(title: str, result: dict) -> Table:
+    table = Table(title=title)
     for col in ("clip", "split", "EMD expert", "EMD npmp", "relative", "success expert", "success npmp"):
         table.add_column(col, justify="left" if col in ("clip", "split") else "right")
     for name, c in result["clips"].items():
@@ -143,11 +154,7 @@ def eval_command(
     for split, s in result["summary"].items():
         table.add_row(f"[bold]mean ({s['clips']})", split, f"{s['emd_expert']:.3f}", f"{s['emd']:.3f}",
                       f"{s['relative_emd_median']:.2f} (median)", f"{s['success_expert']:.2f}", f"{s['success']:.2f}")
-    console.print(table)
-    if out is not None:
-        console.print(f"results written to [bold]{write_json(result, out)}[/]")
-    else:
-        console.print(json.dumps(result["summary"]))
+    return table
 
 
 def register(root: typer.Typer) -> None:

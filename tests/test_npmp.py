@@ -221,6 +221,18 @@ def test_cli_distill_resume_track_and_eval(bfm, library, tmp_path):
     assert res.exit_code == 0, res.output
     import json
 
-    result = json.loads((tmp_path / "ev" / "results.json").read_text())
+    result = json.loads((tmp_path / "ev" / "results.json").read_text())["npmp"][str(run)]
     assert set(result["clips"]) == {"arm_swing", "stand"} and result["summary"]["train"]["clips"] == 2
     assert all(c["relative_emd"] > 0 for c in result["clips"].values())
+
+
+def test_relative_to_expert_by_hand():
+    from fbcpr.npmp.evaluate import relative_to_expert
+
+    npmp = {"a": {"emd": 2.0, "success": 0.0}, "b": {"emd": 1.0, "success": 1.0}}
+    expert = {"a": {"emd": 1.0, "success": 1.0}, "b": {"emd": 1.5, "success": 1.0}}
+    out = relative_to_expert(npmp, expert, train_clips=["a"])
+    assert out["clips"]["a"]["split"] == "train" and out["clips"]["b"]["split"] == "held_out"
+    assert out["clips"]["a"]["relative_emd"] == 0.5 and out["clips"]["b"]["relative_emd"] == 1.5
+    assert out["summary"]["all"] == {"clips": 2, "emd": 1.5, "emd_expert": 1.25, "relative_emd_median": 1.0,
+                                     "success": 0.5, "success_expert": 1.0}

@@ -9,10 +9,6 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 import numpy as np
-from rich.progress import Progress
-
-from fbcpr.evaluation.agents import Agent
-from fbcpr.evaluation.runner import tracking_suite
 
 
 def relative_to_expert(npmp: dict[str, dict[str, float]], expert: dict[str, dict[str, float]],
@@ -35,11 +31,3 @@ def relative_to_expert(npmp: dict[str, dict[str, float]], expert: dict[str, dict
                           "relative_emd_median": float(np.median(col["relative_emd"])),
                           "success": float(col["success"].mean()), "success_expert": float(col["success_expert"].mean())}
     return {"clips": dict(sorted(clips.items())), "summary": summary}
-
-
-def compare_with_expert(npmp: Agent, expert: Agent, clips: Sequence[Any], train_clips: Sequence[str],
-                        progress: Progress) -> dict[str, Any]:
-    """Track every clip with the expert and with the NPMP, then score the NPMP relative to the expert."""
-    scores_expert = tracking_suite(expert, clips, progress)
-    scores_npmp = tracking_suite(npmp, clips, progress)
-    return relative_to_expert(scores_npmp, scores_expert, train_clips)
