@@ -236,3 +236,18 @@ def test_relative_to_expert_by_hand():
     assert out["clips"]["a"]["relative_emd"] == 0.5 and out["clips"]["b"]["relative_emd"] == 1.5
     assert out["summary"]["all"] == {"clips": 2, "emd": 1.5, "emd_expert": 1.25, "relative_emd_median": 1.0,
                                      "success": 0.5, "success_expert": 1.0}
+
+
+def test_latent_optimisation_fits_the_expert_actions(bc_data):
+    from fbcpr.npmp.latent_opt import optimise_latents
+
+    model = tiny()
+    model.obs_normalizer.update(bc_data.obs)
+    states, actions = bc_data.obs[:5], bc_data.action[:5]
+    z0 = model.encode(states)
+    z0 = torch.cat([z0, z0[-1:]])
+    z, before, after = optimise_latents(model, states, actions, z0, steps=50)
+    assert z.shape == z0.shape and after < before
+    assert all(p.requires_grad for p in model.parameters())
+    with pytest.raises(ValueError, match="same T"):
+        optimise_latents(model, states, actions[:3], z0)
