@@ -251,3 +251,18 @@ def test_latent_optimisation_fits_the_expert_actions(bc_data):
     assert all(p.requires_grad for p in model.parameters())
     with pytest.raises(ValueError, match="same T"):
         optimise_latents(model, states, actions[:3], z0)
+
+
+def test_checkpoint_round_trip_and_corruption(tmp_path):
+    from fbcpr.npmp.checkpoint import load_npmp, save_npmp
+
+    model = tiny(alpha=0.0)
+    model.obs_normalizer.update(torch.randn(10, 358))
+    path = save_npmp(tmp_path / "ck", model, {"method": "bc", "expert": "x"})
+    back = load_npmp(path)
+    assert back.model.cfg == model.cfg and back.info["expert"] == "x"
+    for (k, v), (k2, v2) in zip(model.state_dict().items(), back.model.state_dict().items()):
+        assert k == k2 and torch.equal(v, v2)
+    (path / "model.safetensors").write_bytes(b"garbage")
+    with pytest.raises(CheckpointError, match="checksum mismatch"):
+        load_npmp(path)
