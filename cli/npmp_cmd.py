@@ -2,6 +2,7 @@
 `fbcpr npmp eval` (one-shot tracking relative to the expert)."""
 from __future__ import annotations
 
+import json
 import time
 from enum import Enum
 from pathlib import Path
@@ -15,6 +16,7 @@ from fbcpr.cli.common import HelpGroup, cli_errors, console, progress
 app = typer.Typer(help="Neural probabilistic motor primitives distilled from a BFM (NPMP).", no_args_is_help=True,
                   cls=HelpGroup)
 DATA_FILE = "data.safetensors"
+LOG_EVERY = 50  # gradient steps between lines of metrics.jsonl
 
 
 class Method(str, Enum):
@@ -33,7 +35,7 @@ class Preset(str, Enum):
 def distill_command(
     expert: str = typer.Argument(..., help="The expert BFM: checkpoint dir, hub id or 'pretrained'."),
     motions: Path = typer.Option(..., "--motions", help="Folder of clip .npz files the expert tracks."),
-    out: Path = typer.Option(..., "--out", help="Run directory: data.safetensors and checkpoints/."),
+    out: Path = typer.Option(..., "--out", help="Run directory: data.safetensors, checkpoints/, metrics.jsonl."),
     method: Method = typer.Option(Method.bc, "--method", help="bc: noisy rollouts; lfpc: one nominal rollout per "
                                   "clip with Jacobians (linear-feedback policy cloning)."),
     preset: Preset = typer.Option(Preset.cpu, "--preset", help="Model size: paper (encoder 2x1024, decoder 3x1024) "
@@ -83,6 +85,9 @@ def distill_command(
         def report(step: int, metrics: dict[str, float]) -> None:
             bar.update(task, completed=step, description=f"npmp {method.value} loss {metrics['loss']:.2f} "
                                                          f"kl {metrics['kl']:.2f} mse {metrics['mse']:.4f}")
+            if step == 1 or step % LOG_EVERY == 0:
+                with open(out / "metrics.jsonl", "a") as log:
+                    log.write(json.dumps({"step": step, "wall_s": round(time.time() - start, 1), **metrics}) + "\n")
 
         path, done = distill(out, data, cfg, steps, info, resume=resume, checkpoint_every=checkpoint_every,
                              on_update=report)

@@ -211,6 +211,7 @@ def test_cli_distill_resume_track_and_eval(bfm, library, tmp_path):
     res = CliRunner().invoke(app, base + ["--steps", "2"])
     assert res.exit_code == 0, res.output
     assert (run / "data.safetensors").is_file() and (run / "checkpoints" / "step_00000002").is_dir()
+    assert '"step": 1' in (run / "metrics.jsonl").read_text()
     res = CliRunner().invoke(app, base + ["--steps", "3", "--resume"])
     assert res.exit_code == 0 and "3 gradient steps" in res.output, res.output
     res = CliRunner().invoke(app, [a if a != "lfpc" else "bc" for a in base] + ["--steps", "4", "--resume"])
