@@ -51,7 +51,7 @@ def main() -> None:
     library = MotionLibrary.load(args.motions)
     by_name = {c.name: c for c in library.clips}
     lines = []
-    with Progress() as bar:
+    with Progress(transient=True) as bar:
         for name in args.clips.split(","):
             clip = by_name[name]
             nominal = collect(expert, MotionLibrary([clip]), "bc", rollouts=1, noise=0.0, max_steps=clip.n_frames)
