@@ -100,8 +100,8 @@ class Distiller:
 
 
 def distill(out: Path, data: ExpertData, cfg: NPMPConfig, steps: int, info: dict[str, Any], resume: bool = False,
-            checkpoint_every: int = 500, on_update: Callable[[int, dict[str, float]], None] | None = None,
-            stop: Callable[[], bool] = lambda: False) -> tuple[Path, int]:
+            checkpoint_every: int = 500,
+            on_update: Callable[[int, dict[str, float]], None] | None = None) -> tuple[Path, int]:
     """Train until `steps` gradient steps in total, checkpointing into out/checkpoints (latest only) every
     `checkpoint_every` steps and at the end; `resume` continues from the latest checkpoint there (its config
     wins). Returns the final checkpoint and the step count reached."""
@@ -118,13 +118,13 @@ def distill(out: Path, data: ExpertData, cfg: NPMPConfig, steps: int, info: dict
         model.obs_normalizer.update(data.obs)  # fixed statistics of the expert states
         distiller = Distiller(model, data)
     last = None
-    while distiller.steps < steps and not stop():
+    while distiller.steps < steps:
         metrics = distiller.update()
         if on_update is not None:
             on_update(distiller.steps, metrics)
         if distiller.steps % checkpoint_every == 0 or distiller.steps == steps:
             last = _save(root, distiller, {**info, "metrics": metrics})
-    if last is None:  # nothing trained (already done, or stopped at once): the latest checkpoint stands
+    if last is None:  # nothing to train (already at `steps`): the latest checkpoint stands
         last = latest_checkpoint(root) if (root / "latest").exists() else _save(root, distiller, info)
     return last, distiller.steps
 
