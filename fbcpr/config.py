@@ -17,10 +17,11 @@ from typing import Any, Callable
 
 import yaml
 
+from fbcpr.errors import FBCPRError
 from humanoid_env.actions import ACTION_MAPPINGS, DEFAULT_ACTION_MAPPING
 
 
-class ConfigError(ValueError):
+class ConfigError(FBCPRError, ValueError):
     """A configuration value that is unknown, of the wrong type or out of range; the message names the key."""
 
 

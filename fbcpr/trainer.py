@@ -530,7 +530,7 @@ def _memory_bytes(device: torch.device) -> int:
 def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device) -> bool:
     """Estimate the model's and the replay buffer's memory before allocating either, and raise ConfigError
     naming the key to lower when they cannot fit, instead of an allocation failing (or the OOM killer striking)
-    minutes later. Returns whether the buffer is memory-mapped (over train.buffer_memmap_mb)."""
+    minutes later; CheckpointError when the disk at `out` cannot hold one checkpoint. Returns whether the buffer is memory-mapped (over train.buffer_memmap_mb)."""
     tc = cfg.train
     with torch.device("meta"):  # shapes only: no memory is allocated
         model = get_method(cfg.algorithm).model(cfg.model)
@@ -543,18 +543,23 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device)
     specs = transition_specs(cfg.model.obs_dim, cfg.model.action_dim, getattr(model, "z_dim", 0), nq, nv)
     buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs)
     memmap = buffer > tc.buffer_memmap_mb * 2**20
-    if memmap:
-        folder = next(p for p in (out, *out.absolute().parents) if p.exists())
-        free = shutil.disk_usage(folder).free
-        if buffer > free:
-            raise ConfigError(f"train.buffer_capacity: the memory-mapped replay buffer needs {buffer / 2**30:,.1f} GiB "
-                              f"on disk, more than the {free / 2**30:,.1f} GiB free at {folder}")
-    else:
-        ram = _memory_bytes(torch.device("cpu"))
-        if buffer + (need if device.type == "cpu" else 0) > ram:
-            raise ConfigError(f"train.buffer_capacity: the replay buffer needs {buffer / 2**30:,.1f} GiB of memory, "
-                              f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
-                              "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
+    folder = next(p for p in (out, *out.absolute().parents) if p.exists())
+    free = shutil.disk_usage(folder).free
+    if memmap and buffer > free:
+        raise ConfigError(f"train.buffer_capacity: the memory-mapped replay buffer needs {buffer / 2**30:,.1f} GiB "
+                          f"on disk, more than the {free / 2**30:,.1f} GiB free at {folder}")
+    ram = _memory_bytes(torch.device("cpu"))
+    if not memmap and buffer + (need if device.type == "cpu" else 0) > ram:
+        raise ConfigError(f"train.buffer_capacity: the replay buffer needs {buffer / 2**30:,.1f} GiB of memory, "
+                          f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
+                          "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
+    # a full disk fails here, in one line, before TensorBoard's writer thread would fail with a long traceback.
+    # One checkpoint: weights, two Adam moments and targets (4 copies), the reward sample, the buffer if saved.
+    ckpt = params * 16 + tc.reward_buffer_size * (cfg.model.obs_dim + nq + nv) * 4 + (buffer if tc.save_buffer else 0)
+    if ckpt + (buffer if memmap else 0) > free:
+        raise CheckpointError(f"{folder}: {free / 2**20:,.0f} MiB free on disk, but one checkpoint of this run needs "
+                              f"about {ckpt / 2**20:,.0f} MiB" + (f" beside the {buffer / 2**20:,.0f} MiB "
+                              "memory-mapped replay buffer" if memmap else "") + "; free space or choose another --out")
     return memmap
 
 
