@@ -158,11 +158,16 @@ def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: 
 
 
 def tracking_scores(model: Any, bundle: EnvBundle, seq_length: int, max_clips: int, max_steps: int,
-                    rng: np.random.Generator, stop: Callable[[], bool] = lambda: False) -> dict[str, tuple[float, bool]] | None:
+                    rng: np.random.Generator, stop: Callable[[], bool] = lambda: False,
+                    shard: tuple[int, int] = (0, 1)) -> dict[str, tuple[float, bool]] | None:
     """{clip name: (EMD, success)} for up to max_clips clips (all of them when the library is small enough);
-    None when `stop()` interrupted the rollout."""
+    None when `stop()` interrupted the rollout. shard = (rank, world size): track only every world-size-th of the
+    chosen clips, from the rank-th (the same rng on every rank chooses the same clips)."""
     n = len(bundle.library.names)
     ids = list(range(n)) if n <= max_clips else sorted(rng.choice(n, size=max_clips, replace=False).tolist())
+    ids = ids[shard[0]::shard[1]]
+    if not ids:
+        return {}
     trajs = track_clips(model, bundle, ids, seq_length, max_steps, stop)
     if trajs is None:
         return None
