@@ -71,7 +71,6 @@ def learner_state(tr: Trainer) -> dict[str, torch.Tensor]:
 
 # ------------------------------------------------------------------------------------------ spawned workers
 def _train_worker(rank: int, world: int, ports: list[int], out: str) -> None:
-    torch.set_num_threads(1)
     for port, (name, cfg) in zip(ports, (("fbcpr", fbcpr_cfg()), ("amp", amp_cfg()))):
         os.environ.update(rank_env(rank, world, port))
         tr = Trainer(cfg, Path(out) / name, progress=False)
@@ -116,7 +115,6 @@ def normalizer_shard(rank: int) -> torch.Tensor:
 
 def _agent_worker(rank: int, world: int, port: int, out: str) -> None:
     os.environ.update(rank_env(rank, world, port))
-    torch.set_num_threads(1)
     replicas, _ = distributed.setup(torch.device("cpu"), 60.0)
     batch, windows = split_batch()
     half = {k: v.chunk(world)[rank] for k, v in batch.items()}
@@ -133,9 +131,23 @@ def _agent_worker(rank: int, world: int, port: int, out: str) -> None:
     save_file(state, str(Path(out) / f"agent_rank{rank}.safetensors"))
 
 
+def _worker(rank: int, world: int, ports: list[int], out: str) -> None:
+    """One pair of processes for every 2-rank check (starting processes is what costs here)."""
+    torch.set_num_threads(1)
+    _agent_worker(rank, world, ports[0], out)
+    _train_worker(rank, world, ports[1:], out)
+
+
+@pytest.fixture(scope="module")
+def two_ranks(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("two_ranks")
+    mp.spawn(_worker, args=(2, [free_port() for _ in range(3)], str(out)), nprocs=2, join=True)
+    return out
+
+
 # ------------------------------------------------------------------------------------------ tests
-def test_two_ranks_stay_bit_identical_on_their_own_data(tmp_path):
-    mp.spawn(_train_worker, args=(2, [free_port(), free_port()], str(tmp_path)), nprocs=2, join=True)
+def test_two_ranks_stay_bit_identical_on_their_own_data(two_ranks):
+    tmp_path = two_ranks
     for name in ("fbcpr", "amp"):
         r0, r1 = (load_file(str(tmp_path / f"{name}_rank{r}.safetensors")) for r in (0, 1))
         env_steps, updates, tracked, clips = r0["summary"].tolist()
@@ -158,9 +170,8 @@ def test_two_ranks_stay_bit_identical_on_their_own_data(tmp_path):
     assert clips > 1 and tracked == clips  # each rank tracked its share of the clips; both got every score
 
 
-def test_split_update_equals_single_process_update_and_normaliser_merges_exactly(tmp_path):
-    mp.spawn(_agent_worker, args=(2, free_port(), str(tmp_path)), nprocs=2, join=True)
-    r0, r1 = (load_file(str(tmp_path / f"agent_rank{r}.safetensors")) for r in (0, 1))
+def test_split_update_equals_single_process_update_and_normaliser_merges_exactly(two_ranks):
+    r0, r1 = (load_file(str(two_ranks / f"agent_rank{r}.safetensors")) for r in (0, 1))
     batch, windows = split_batch()
     single = td3_agent()
     before = {k: v.clone() for k, v in single.model.state_dict().items()}
