@@ -49,7 +49,7 @@ from fbcpr.checkpoint import (
     save_checkpoint,
 )
 from fbcpr import distributed
-from fbcpr.config import Config, ConfigError
+from fbcpr.config import Config, ConfigError, TrainConfig
 from fbcpr.envs import EnvBundle, make_env, tracking_scores
 from fbcpr.evaluation.metrics import EMDUnavailable
 from fbcpr.methods import get_method
@@ -178,7 +178,7 @@ class Trainer:
         stop_at = tc.total_env_steps if max_env_steps is None else min(tc.total_env_steps, self.env_steps + max_env_steps)
         handlers = self._install_signals()
         t0, steps0 = time.perf_counter(), self.env_steps
-        steps_per_phase = max(1, math.ceil(tc.rollout_steps / (tc.num_envs * self.replicas.world_size)))
+        steps_per_phase = phase_steps(tc, self.replicas.world_size)
         try:
             with self._progress(stop_at) as (progress, task):
                 while self.env_steps < stop_at and not self._halt():
@@ -656,17 +656,23 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
     return memmap
 
 
+def phase_steps(tc: TrainConfig, world_size: int) -> int:
+    """Vector-env steps each rank takes per rollout phase: rollout_steps global env steps shared by the ranks."""
+    return max(1, math.ceil(tc.rollout_steps / (tc.num_envs * world_size)))
+
+
 def check_world_size(cfg: Config, world_size: int) -> None:
-    """ConfigError unless `world_size` ranks can run `cfg` with its update-to-data ratio: each rank collects
-    rollout_steps / (num_envs * world_size) vector steps per phase, so that product must divide rollout_steps;
-    an exact resume (train.save_buffer) holds for one process only (the other ranks' shards are not saved)."""
+    """ConfigError unless `world_size` ranks run `cfg` at the update-to-data ratio of one process: a phase must
+    collect as many global env steps as one process collects (ranks x phase_steps x num_envs); an exact resume
+    (train.save_buffer) holds for one process only (the other ranks' replay shards are not saved)."""
     if world_size <= 1:
         return
     tc = cfg.train
-    if tc.rollout_steps % (tc.num_envs * world_size):
-        fits = [w for w in range(1, tc.rollout_steps // tc.num_envs + 1) if tc.rollout_steps % (tc.num_envs * w) == 0]
-        raise ConfigError(f"train.rollout_steps: {tc.rollout_steps} global steps per phase cannot be split over "
-                          f"{world_size} ranks of train.num_envs: {tc.num_envs} envs without changing the "
+    single = phase_steps(tc, 1)
+    if phase_steps(tc, world_size) * world_size != single:
+        fits = [w for w in range(1, single + 1) if phase_steps(tc, w) * w == single]
+        raise ConfigError(f"train.rollout_steps: {tc.rollout_steps} env steps per phase with train.num_envs: "
+                          f"{tc.num_envs} envs per rank do not split over {world_size} ranks without changing the "
                           f"update-to-data ratio; world sizes that fit: {fits}")
     if tc.save_buffer:
         raise ConfigError(f"train.save_buffer: an exact resume needs one process, and {world_size} ranks were "
