@@ -40,6 +40,8 @@ import torch.distributed as dist
 from torch import Tensor
 from torch.optim.optimizer import register_optimizer_step_pre_hook
 
+from fbcpr.config import ConfigError
+
 #: The replica group whose `synchronized()` block is running (hooks and normalisers consult it); None outside.
 _ACTIVE: "Replicas | None" = None
 
@@ -55,7 +57,7 @@ class Replicas:
                  device: torch.device | None = None, timeout_s: float = 0.0) -> None:
         self.rank, self.world_size = rank, world_size
         self.local_rank, self.local_world_size = local_rank, local_world_size
-        self.device = device or torch.device("cpu")  # where collective tensors live (the GPU under NCCL)
+        self.device = device or torch.device("cpu")  # where collective tensors live: the GPU under NCCL, else host
         self.timeout_s = timeout_s
         self._hook: Any = None
         self._seen: list[weakref.ref[torch.optim.Optimizer]] = []  # optimisers in first-step order (same on every rank)
@@ -127,9 +129,9 @@ class Replicas:
         with self._collective("the gradient all-reduce"):
             for group in groups.values():
                 grads = [p.grad for p in group]
-                flat = torch.cat([g.reshape(-1) for g in grads])
+                flat = torch.cat([g.reshape(-1) for g in grads]).to(self.device)
                 dist.all_reduce(flat)
-                flat.div_(self.world_size)
+                flat = flat.div_(self.world_size).to(grads[0].device)
                 torch._foreach_copy_(grads, [f.view_as(g) for f, g in zip(flat.split([g.numel() for g in grads]), grads)])
         for p in params:
             self._synced[id(p)] = (weakref.ref(p), weakref.ref(p.grad), p.grad._version)
@@ -223,23 +225,27 @@ def launched_rank() -> int:
     return int(os.environ.get("RANK", "0")) if launched_world_size() > 1 else 0
 
 
-def setup(device: torch.device, timeout_s: float) -> tuple[Replicas, torch.device]:
-    """Join the process group torchrun describes in the environment (RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR, ...):
-    NCCL with one GPU per local rank when training on CUDA, gloo on CPU. Returns the replicas and this rank's device.
-    Without torchrun (or with one process) nothing is initialised."""
+def setup(device: torch.device, timeout_s: float, backend: str = "auto") -> tuple[Replicas, torch.device]:
+    """Join the process group torchrun describes in the environment (RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR, ...).
+    On CUDA each local rank takes GPU LOCAL_RANK (modulo the GPUs there are) and `auto` means NCCL, which needs one
+    GPU per process; gloo (the CPU's, or `train.dist_backend: gloo` to share a GPU) reduces through host memory.
+    Returns the replicas and this rank's device. Without torchrun (or with one process) nothing is initialised."""
     world = launched_world_size()
     if world <= 1:
         return Replicas(), device
     rank, local_rank = int(os.environ["RANK"]), int(os.environ.get("LOCAL_RANK", "0"))
     local_world = int(os.environ.get("LOCAL_WORLD_SIZE", "1"))
+    if backend == "auto":
+        backend = "nccl" if device.type == "cuda" else "gloo"
+    if backend == "nccl" and (device.type != "cuda" or local_world > torch.cuda.device_count()):
+        raise ConfigError(f"train.dist_backend: NCCL needs one GPU per process, and {local_world} processes on this "
+                          f"machine train on {device.type} with {torch.cuda.device_count()} GPU(s); start one "
+                          "process per GPU (--nproc_per_node), or set gloo")
     if device.type == "cuda":
-        if local_rank >= torch.cuda.device_count():
-            raise DistributedError(f"rank {rank}: LOCAL_RANK {local_rank} but this machine has "
-                                   f"{torch.cuda.device_count()} GPU(s); start one process per GPU (--nproc_per_node)")
-        device = torch.device("cuda", local_rank)
+        device = torch.device("cuda", local_rank % torch.cuda.device_count())
         torch.cuda.set_device(device)
-    backend = "nccl" if device.type == "cuda" else "gloo"
-    replicas = Replicas(rank, world, local_rank, local_world, device, timeout_s)
+    collective = device if backend == "nccl" else torch.device("cpu")
+    replicas = Replicas(rank, world, local_rank, local_world, collective, timeout_s)
     with replicas._collective("process-group start-up"):
         if not dist.is_initialized():
             dist.init_process_group(backend, rank=rank, world_size=world, timeout=timedelta(seconds=timeout_s))

@@ -94,7 +94,7 @@ class Trainer:
         if tc.torch_threads:
             torch.set_num_threads(tc.torch_threads)
         # device and env fail before the run directory exists
-        self.replicas, self.device = distributed.setup(resolve_device(tc.device), tc.dist_timeout_s)
+        self.replicas, self.device = distributed.setup(resolve_device(tc.device), tc.dist_timeout_s, tc.dist_backend)
         r = self.replicas
         self.progress_enabled = progress and r.is_main
         check_world_size(cfg, r.world_size)
