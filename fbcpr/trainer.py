@@ -9,9 +9,9 @@ model, the exact learner state (target nets, optimisers, normaliser, counters, R
 optionally the replay buffer) and a reward-inference subsample of the buffer. SIGINT/SIGTERM ends the
 run at the next safe point with a final checkpoint. Under torchrun every rank runs this loop on its own envs and
 replay shard with a replica of the learner, kept identical by `fbcpr.distributed` (gradients averaged over ranks,
-normaliser statistics merged); step counts and periods are global, and only rank 0 writes.
-Optional packages degrade with one warning each: without tensorboard metrics go to metrics.csv only; without any EMD solver (POT, or scipy for the equal-length
-fallback) tracking evaluation and the priority refresh are skipped.
+normaliser statistics merged); step counts and periods are global, and only rank 0 writes. Optional packages
+degrade with one warning each: without tensorboard metrics go to metrics.csv only; without any EMD solver (POT, or
+scipy for the equal-length fallback) tracking evaluation and the priority refresh are skipped.
 """
 from __future__ import annotations
 
@@ -101,7 +101,9 @@ class Trainer:
         r.check_replicated({"config": torch.frombuffer(bytearray(config_json(cfg).encode()), dtype=torch.uint8)},
                            "the run config")
         seed = tc.seed + r.rank  # this rank's envs and random streams (rank 0: those of a single process)
-        self.bundle: EnvBundle = make_env(cfg.env, tc.num_envs, seed)
+        # ranks on one machine share its cores for physics (one process: all of them, as MuJoCo's default)
+        threads = max(1, (os.cpu_count() or 1) // r.local_world_size) if r.local_world_size > 1 else None
+        self.bundle: EnvBundle = make_env(cfg.env, tc.num_envs, seed, threads)
         b = self.bundle
         for key, have in (("obs_dim", b.obs_dim), ("action_dim", b.action_dim)):
             given = getattr(cfg.model, key)
@@ -153,7 +155,8 @@ class Trainer:
         self.z_age = np.zeros(tc.num_envs, dtype=np.int64)
         if resume:
             self._resume()
-        r.check_replicated(self._learner_state(*self.agent.state()), "the learner state")
+        if r.enabled:
+            r.check_replicated(self._learner_state(*self.agent.state()), "the learner state")
         self.csv_path = self.out / "metrics.csv"
         self._writer: Any = None  # SummaryWriter once created, False where tensorboard is missing
 
@@ -266,7 +269,9 @@ class Trainer:
                 self.next_priority += tc.priority_every
             while self.next_eval <= self.env_steps:
                 self.next_eval += tc.eval_every
-        if self.env_steps >= self.next_log or evaluated:
+        # one process logs an evaluation that gave metrics; ranks log whenever they evaluated (the custom hook runs on
+        # rank 0 only, so its metrics cannot decide for all, and a log row takes every rank's counts)
+        if self.env_steps >= self.next_log or (evaluated if self.replicas.enabled else extra):
             fps = (self.env_steps - steps0) / max(time.perf_counter() - t0, 1e-9)
             episodes, dropped = self.replicas.sum(np.array([self.episodes, self.buffer.dropped], dtype=np.float64))
             row = {"env_steps": self.env_steps, "updates": self.updates, "episodes": int(episodes),

@@ -191,6 +191,19 @@ def test_split_update_equals_single_process_update_and_normaliser_merges_exactly
     assert r0["norm.count"].item() == 3 + 7 + 13
 
 
+def test_a_two_rank_checkpoint_resumes_on_one_process(two_ranks, tmp_path):
+    import shutil
+
+    run = tmp_path / "fbcpr"
+    shutil.copytree(two_ranks / "fbcpr", run)
+    meta = load_checkpoint(run / "checkpoints" / "step_0000000096").trainer_state()[1]
+    assert meta["world_size"] == 2 and meta["updates"] == 15
+    tr = Trainer(fbcpr_cfg(total_env_steps=128), run, resume=True, progress=False)
+    assert tr.replicas.world_size == 1 and tr.updates == 15
+    summary = tr.run()
+    assert summary["env_steps"] == 128 and summary["updates"] == 15 + 2 * 3  # two more phases of 16 steps
+
+
 def test_world_size_limits_are_config_errors(tmp_path):
     from fbcpr.trainer import check_world_size
 
