@@ -71,12 +71,13 @@ def main() -> None:
             print(f"  {n} rank(s) done, load average {os.getloadavg()[0]:.1f}", flush=True)
     base = rows[0]
     print(f"\n{'ranks':>5} {'global batch':>12} {'collect steps/s':>16} {'train steps/s':>14} {'updates/s':>10} "
-          f"{'updates':>8} {'eff. collect':>12} {'eff. updates':>12}")
+          f"{'samples/s':>10} {'updates':>8} {'eff. collect':>12} {'eff. updates':>12}")
     for n, c, t, u, nu in rows:
         scale = n / base[0]
-        print(f"{n:>5} {n * batch:>12} {c:>16,.0f} {t:>14,.0f} {u:>10.2f} {nu:>8} {c / (scale * base[1]):>12.2f} "
-              f"{u / (scale * base[3]):>12.2f}")
-    print("\nefficiency = rate(N) / (N x rate(1 rank)); updates/s counts global updates, each on N x the local batch")
+        print(f"{n:>5} {n * batch:>12} {c:>16,.0f} {t:>14,.0f} {u:>10.2f} {u * n * batch:>10,.0f} {nu:>8} "
+              f"{c / (scale * base[1]):>12.2f} {u / (scale * base[3]):>12.2f}")
+    print("\nefficiency = rate(N) / (N x rate(1 rank)); updates/s counts global updates, each on N x the local batch "
+          "(samples/s = updates/s x global batch)")
 
 
 if __name__ == "__main__":
