@@ -9,7 +9,8 @@ model, batch, envs per rank and update ratio; no checkpoints, evaluations or pri
   train    a short warm-up, then rollouts and updates at the config's update-to-data ratio, gradients averaged
            over the ranks each update: env steps/s and updates/s of the whole loop (global counts).
 Rates are the trainer's own (summary.json: steps over the seconds of `Trainer.run`, start-up excluded). Each rank
-uses train.torch_threads (1 in the shipped CPU configs), so N ranks want N free cores.
+uses train.torch_threads (1 in the shipped CPU configs), so N ranks want N free cores. Last, the time of one gloo
+all-reduce of the model's gradient size over N ranks (what each update adds), measured apart.
 """
 from __future__ import annotations
 
@@ -17,12 +18,20 @@ import argparse
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
+import time
+from dataclasses import replace
 from pathlib import Path
 
+import torch
+import torch.distributed as dist
+import torch.multiprocessing as mp
+
 from fbcpr.config import dump_config, find_config, load_config
+from fbcpr.methods import get_method
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,6 +54,37 @@ def run(config: Path, ranks: int, steps: int, warmup: int, out: Path) -> dict:
            "OMP_NUM_THREADS": "1", "GOMP_SPINCOUNT": "0"}
     subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
     return json.loads((out / "run" / "summary.json").read_text())
+
+
+def _allreduce_worker(rank: int, world: int, port: int, numel: int, repeats: int, out: str) -> None:
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    torch.set_num_threads(1)
+    dist.init_process_group("gloo", rank=rank, world_size=world)
+    flat = torch.randn(numel)
+    dist.all_reduce(flat)  # connections up
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        dist.all_reduce(flat)
+    if rank == 0:
+        Path(out).write_text(str((time.perf_counter() - t0) / repeats))
+    dist.destroy_process_group()
+
+
+def allreduce_ms(world: int, numel: int, repeats: int = 20) -> float:
+    """Milliseconds of one gloo all-reduce of `numel` float32 (the flat gradient of one update) over `world` ranks."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with tempfile.NamedTemporaryFile() as f:
+        mp.spawn(_allreduce_worker, args=(world, port, numel, repeats, f.name), nprocs=world, join=True)
+        return 1000 * float(Path(f.name).read_text())
+
+
+def trainable_parameters(cfg) -> int:
+    """Parameters the update reduces gradients of (the humanoid's dimensions; counted on the meta device)."""
+    model_cfg = replace(cfg.model, obs_dim=cfg.model.obs_dim or 358, action_dim=cfg.model.action_dim or 69)
+    with torch.device("meta"):
+        return sum(p.numel() for p in get_method(cfg.algorithm).model(model_cfg).parameters() if p.requires_grad)
 
 
 def main() -> None:
@@ -78,6 +118,11 @@ def main() -> None:
               f"{c / (scale * base[1]):>12.2f} {u / (scale * base[3]):>12.2f}")
     print("\nefficiency = rate(N) / (N x rate(1 rank)); updates/s counts global updates, each on N x the local batch "
           "(samples/s = updates/s x global batch)")
+    numel = trainable_parameters(cfg)
+    for n in args.ranks:
+        if n > 1:
+            print(f"gradient all-reduce, {numel:,} float32 over {n} gloo ranks: {allreduce_ms(n, numel):.1f} ms "
+                  f"per update, against {1000 / base[3]:.0f} ms per update of the 1-rank loop (env steps included)")
 
 
 if __name__ == "__main__":
