@@ -1,4 +1,5 @@
 """`python -m fbcpr ...`: the `fbcpr` CLI, for launchers that start a module (`torchrun -m fbcpr train ...`)."""
 from fbcpr.cli.app import main
 
-main()
+if __name__ == "__main__":
+    main()
