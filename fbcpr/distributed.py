@@ -81,7 +81,7 @@ class Replicas:
             yield
         except DistributedError:
             raise
-        except (RuntimeError, ValueError) as err:  # DistBackendError is a RuntimeError
+        except RuntimeError as err:  # DistBackendError and DistNetworkError are RuntimeErrors
             first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
             raise DistributedError(
                 f"rank {self.rank} of {self.world_size}: lost the other ranks during {what} (one died, was killed, or "
@@ -110,10 +110,10 @@ class Replicas:
             return
         if not any(ref() is optimizer for ref in self._seen):
             self._seen.append(weakref.ref(optimizer))
-        fresh = [p for ref in self._seen if (opt := ref()) is not None for group in opt.param_groups
-                 for p in group["params"] if p.grad is not None and not self._is_synced(p)]
+        fresh = {id(p): p for ref in self._seen if (opt := ref()) is not None for group in opt.param_groups
+                 for p in group["params"] if p.grad is not None and not self._is_synced(p)}  # a shared one once
         if fresh:
-            self.average_gradients(fresh)
+            self.average_gradients(list(fresh.values()))
 
     def _is_synced(self, p: Tensor) -> bool:
         """Whether p.grad is the very tensor, unchanged, that the last average wrote (a new backward makes a new one,
