@@ -204,7 +204,7 @@ def test_a_two_rank_checkpoint_resumes_on_one_process(two_ranks, tmp_path):
     assert summary["env_steps"] == 128 and summary["updates"] == 15 + 2 * 3  # two more phases of 16 steps
 
 
-def test_world_size_limits_are_config_errors(tmp_path):
+def test_world_size_and_backend_limits_are_config_errors(monkeypatch):
     from fbcpr.trainer import check_world_size
 
     check_world_size(fbcpr_cfg(), 4)  # 16 steps = 4 ranks x 4 envs
@@ -212,6 +212,12 @@ def test_world_size_limits_are_config_errors(tmp_path):
         check_world_size(fbcpr_cfg(), 3)
     with pytest.raises(ConfigError, match="^train.save_buffer"):
         check_world_size(fbcpr_cfg(save_buffer=True), 2)
+    assert distributed.setup(torch.device("cpu"), 5.0)[0].world_size == 1  # no torchrun: nothing to join
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    monkeypatch.setenv("RANK", "0")
+    monkeypatch.setenv("LOCAL_WORLD_SIZE", "2")
+    with pytest.raises(ConfigError, match="^train.dist_backend: NCCL needs one GPU per process"):
+        distributed.setup(torch.device("cpu"), 5.0, "nccl")
 
 
 def test_a_killed_rank_ends_the_others_with_a_clear_error_and_keeps_the_checkpoint(tmp_path):
