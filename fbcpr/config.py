@@ -137,6 +137,8 @@ class TrainConfig:
     reward_buffer_size: int = _f(100_000, _range(0, 10**7))
     save_buffer: bool = _f(False)
     torch_threads: int = _f(0, _range(0, 1024))
+    dist_timeout_s: float = _f(600.0, _range(1.0, 86_400.0))  # torchrun runs: a rank gone this long is an error
+    dist_backend: str = _f("auto", _check(lambda v: v in ("auto", "nccl", "gloo"), "must be auto, nccl or gloo"))
 
 
 @dataclass
