@@ -25,8 +25,10 @@ def train_command(
     init_from: Optional[str] = typer.Option(None, "--init-from", help="Warm-start a new run from the weights of a "
                                             "checkpoint, inference-only ones included ('pretrained': the shipped model)."),
 ) -> None:
-    """Train FB-CPR online; Ctrl-C (or SIGTERM, SIGHUP) stops at the next safe point with a final checkpoint."""
+    """Train FB-CPR online; Ctrl-C (or SIGTERM, SIGHUP) stops at the next safe point with a final checkpoint.
+    Data-parallel over processes and machines: `torchrun --nproc_per_node=N -m fbcpr train ...`."""
     from fbcpr.config import ConfigError, find_config, load_config
+    from fbcpr.distributed import launched_rank
     from fbcpr.trainer import checkpoint_env_steps, resolve_device, train
 
     config_path = find_config(config)
@@ -54,8 +56,9 @@ def train_command(
         if more_steps is not None:
             cfg.train.total_env_steps = done + more_steps
         if done >= cfg.train.total_env_steps:  # nothing to do: leave the run exactly as it is
-            console.print(f"nothing to do: {run_dir} is at {done:,} env steps, and the run's total is "
-                          f"{cfg.train.total_env_steps:,} (--steps is the total; --more-steps N trains N more)")
+            if launched_rank() == 0:
+                console.print(f"nothing to do: {run_dir} is at {done:,} env steps, and the run's total is "
+                              f"{cfg.train.total_env_steps:,} (--steps is the total; --more-steps N trains N more)")
             return
     try:
         summary = train(cfg, run_dir, resume=resume, progress=progress, init_from=init_from)
@@ -66,8 +69,9 @@ def train_command(
         err_console.print(f"[bold red]aborted[/]: {kept}", highlight=False)
         raise typer.Exit(130) from None
     state = "interrupted" if summary["interrupted"] else "finished"
-    console.print(f"{state} at {summary['env_steps']:,} env steps, {summary['updates']:,} updates; "
-                  f"checkpoint: {summary['checkpoint']}")
+    if launched_rank() == 0:
+        console.print(f"{state} at {summary['env_steps']:,} env steps, {summary['updates']:,} updates; "
+                      f"checkpoint: {summary['checkpoint']}")
 
 
 def register(app: typer.Typer) -> None:

@@ -7,9 +7,9 @@ from __future__ import annotations
 from typing import Any
 
 __version__ = "0.1.0"
-__all__ = ["BFM", "Prompt", "Timeline", "__version__"]
+__all__ = ["BFM", "FBCPRError", "Prompt", "Timeline", "__version__"]
 
-_LAZY = {"BFM": "fbcpr.bfm", "Prompt": "fbcpr.prompt", "Timeline": "fbcpr.timeline"}
+_LAZY = {"BFM": "fbcpr.bfm", "FBCPRError": "fbcpr.errors", "Prompt": "fbcpr.prompt", "Timeline": "fbcpr.timeline"}
 
 
 def __getattr__(name: str) -> Any:

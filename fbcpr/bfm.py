@@ -30,6 +30,7 @@ from fbcpr.checkpoint import (
     save_checkpoint,
 )
 from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict
+from fbcpr.errors import InputError
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.prompt import Prompt
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING
@@ -169,20 +170,20 @@ class BFM:
         single = o.dim() == 1
         o = o.unsqueeze(0) if single else o
         if o.dim() != 2 or o.shape[1] != self.obs_dim:
-            raise ValueError(f"obs: expected shape ({self.obs_dim},) or (N, {self.obs_dim}), got {obs_shape}")
+            raise InputError(f"obs: expected shape ({self.obs_dim},) or (N, {self.obs_dim}), got {obs_shape}")
         zt = zt.unsqueeze(0).expand(o.shape[0], -1) if zt.dim() == 1 else zt
         if zt.dim() != 2 or zt.shape[1] != self.z_dim or zt.shape[0] != o.shape[0]:
-            raise ValueError(f"z: expected shape ({self.z_dim},) or ({o.shape[0]}, {self.z_dim}), got {z_shape}")
+            raise InputError(f"z: expected shape ({self.z_dim},) or ({o.shape[0]}, {self.z_dim}), got {z_shape}")
         if not (_all_finite(o) and _all_finite(zt)):
-            raise ValueError("obs and z must be finite (found NaN or inf)")
+            raise InputError("obs and z must be finite (found NaN or inf)")
         norms = torch.linalg.vector_norm(zt.double(), dim=-1)
         if not bool((norms > 0).all()):
-            raise ValueError("z: must be nonzero (it is projected onto the sphere of radius sqrt(z_dim))")
+            raise InputError("z: must be nonzero (it is projected onto the sphere of radius sqrt(z_dim))")
         with torch.inference_mode():
             zt = self.model.project_z((zt.double() / norms[:, None]).to(zt.dtype))  # unit first: 1e30 would overflow
             a = self.model.act(o, zt, mean=mean, generator=generator)
         if not _all_finite(a):
-            raise ValueError("obs: gives non-finite actions (values far outside the observation range the model "
+            raise InputError("obs: gives non-finite actions (values far outside the observation range the model "
                              "was trained on)")
         a = a[0] if single else a
         return a if as_torch else a.cpu().numpy()
@@ -192,9 +193,9 @@ class BFM:
         o = self._tensor(obs, "obs")
         o = o.unsqueeze(0) if o.dim() == 1 else o
         if o.dim() != 2 or o.shape[1] != self.obs_dim:
-            raise ValueError(f"obs: expected shape ({self.obs_dim},) or (N, {self.obs_dim}), got {tuple(o.shape)}")
+            raise InputError(f"obs: expected shape ({self.obs_dim},) or (N, {self.obs_dim}), got {tuple(o.shape)}")
         if not _all_finite(o):
-            raise ValueError("obs must be finite (found NaN or inf)")
+            raise InputError("obs must be finite (found NaN or inf)")
         b = o.new_empty(o.shape[0], self.z_dim)
         with torch.inference_mode():
             for start in range(0, o.shape[0], _CHUNK):
@@ -213,7 +214,7 @@ class BFM:
         try:
             arr = np.asarray(x, dtype=np.float32)
         except (TypeError, ValueError) as err:
-            raise ValueError(f"{name}: expected a numpy array or torch tensor of numbers ({err})") from None
+            raise InputError(f"{name}: expected a numpy array or torch tensor of numbers ({err})") from None
         if not arr.flags.writeable:  # read-only views (np.broadcast_to, memmaps): torch wants memory it may write
             arr = arr.copy()
         return torch.as_tensor(arr, device=self.device)
@@ -245,7 +246,7 @@ class BFM:
         buf = self.reward_buffer
         if buf is not None and reward_samples is not None:
             if reward_samples < 1:
-                raise ValueError(f"reward_samples must be >= 1, got {reward_samples}")
+                raise InputError(f"reward_samples must be >= 1, got {reward_samples}")
             buf = self.reward_samples(reward_samples, seed=0)[0]
         return save_checkpoint(path, self.model, self.config, reward_buffer=buf,
                                reward_dtype=torch.float16 if half else torch.float32)
@@ -269,7 +270,7 @@ class BFM:
         import huggingface_hub
 
         if not _REPO_ID.match(repo_id):
-            raise ValueError(f"{repo_id!r} is not a Hugging Face repo id (expected 'owner/name')")
+            raise InputError(f"{repo_id!r} is not a Hugging Face repo id (expected 'owner/name')")
         with tempfile.TemporaryDirectory(prefix="fbcpr-hub-") as tmp:
             folder = self.save_for_hub(Path(tmp) / "model", metrics=metrics, repo_id=repo_id)
             huggingface_hub.create_repo(repo_id, token=token, private=private, exist_ok=True)

@@ -33,6 +33,7 @@ from safetensors.torch import load_file, save_file
 
 import fbcpr
 from fbcpr.config import Config, ConfigError, ModelConfig, config_from_dict, config_to_dict, model_config_from_dict
+from fbcpr.errors import FBCPRError
 from fbcpr.methods import DEFAULT_ALGORITHM, METHODS, get_method
 from humanoid_env.actions import LEGACY_ACTION_MAPPING
 
@@ -44,7 +45,7 @@ REWARD_KEYS = ("next_obs", "qpos", "qvel")
 _META_KEY = "fbcpr_json"
 
 
-class CheckpointError(RuntimeError):
+class CheckpointError(FBCPRError, RuntimeError):
     """A checkpoint that is missing, corrupted or does not match its config; the message names the problem."""
 
 

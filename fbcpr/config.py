@@ -17,10 +17,11 @@ from typing import Any, Callable
 
 import yaml
 
+from fbcpr.errors import FBCPRError
 from humanoid_env.actions import ACTION_MAPPINGS, DEFAULT_ACTION_MAPPING
 
 
-class ConfigError(ValueError):
+class ConfigError(FBCPRError, ValueError):
     """A configuration value that is unknown, of the wrong type or out of range; the message names the key."""
 
 
@@ -136,6 +137,8 @@ class TrainConfig:
     reward_buffer_size: int = _f(100_000, _range(0, 10**7))
     save_buffer: bool = _f(False)
     torch_threads: int = _f(0, _range(0, 1024))
+    dist_timeout_s: float = _f(600.0, _range(1.0, 86_400.0))  # torchrun runs: a rank gone this long is an error
+    dist_backend: str = _f("auto", _check(lambda v: v in ("auto", "nccl", "gloo"), "must be auto, nccl or gloo"))
 
 
 @dataclass

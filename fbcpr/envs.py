@@ -42,11 +42,12 @@ class EnvBundle:
     task_reward: Callable[[str], TaskReward]              # registry task name -> reward of (next_obs, qpos, qvel)
 
 
-def make_env(cfg: EnvConfig, num_envs: int, seed: int) -> EnvBundle:
-    """Build the configured environment (`humanoid` or `toy`) with `num_envs` parallel copies."""
+def make_env(cfg: EnvConfig, num_envs: int, seed: int, threads: int | None = None) -> EnvBundle:
+    """Build the configured environment (`humanoid` or `toy`) with `num_envs` parallel copies, stepped on `threads`
+    threads (None: all cores; data-parallel ranks on one machine share them)."""
     if cfg.name == "toy":
         return _toy(cfg, num_envs)
-    return _humanoid(cfg, num_envs)
+    return _humanoid(cfg, num_envs, threads)
 
 
 def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
@@ -84,7 +85,7 @@ def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
     )
 
 
-def _humanoid(cfg: EnvConfig, num_envs: int) -> EnvBundle:
+def _humanoid(cfg: EnvConfig, num_envs: int, threads: int | None = None) -> EnvBundle:
     from humanoid_env import NQ, NU, NV, OBS_DIM
     from humanoid_env.inits import make_init
     from humanoid_env.vector import VectorHumanoidEnv
@@ -113,7 +114,7 @@ def _humanoid(cfg: EnvConfig, num_envs: int) -> EnvBundle:
 
     return EnvBundle(
         env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib), max_episode_steps=cfg.max_episode_steps,
-                              action_mapping=cfg.action_mapping),
+                              action_mapping=cfg.action_mapping, num_threads=threads),
         library=lib, obs_dim=OBS_DIM, action_dim=NU, nq=NQ, nv=NV,
         make_eval_env=lambda n, steps: VectorHumanoidEnv(n, max_episode_steps=steps, action_mapping=cfg.action_mapping),
         clip_obs=lambda i: lib.clips[i].obs,
@@ -158,11 +159,16 @@ def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: 
 
 
 def tracking_scores(model: Any, bundle: EnvBundle, seq_length: int, max_clips: int, max_steps: int,
-                    rng: np.random.Generator, stop: Callable[[], bool] = lambda: False) -> dict[str, tuple[float, bool]] | None:
+                    rng: np.random.Generator, stop: Callable[[], bool] = lambda: False,
+                    shard: tuple[int, int] = (0, 1)) -> dict[str, tuple[float, bool]] | None:
     """{clip name: (EMD, success)} for up to max_clips clips (all of them when the library is small enough);
-    None when `stop()` interrupted the rollout."""
+    None when `stop()` interrupted the rollout. shard = (rank, world size): track only every world-size-th of the
+    chosen clips, from the rank-th (the same rng on every rank chooses the same clips)."""
     n = len(bundle.library.names)
     ids = list(range(n)) if n <= max_clips else sorted(rng.choice(n, size=max_clips, replace=False).tolist())
+    ids = ids[shard[0]::shard[1]]
+    if not ids:
+        return {}
     trajs = track_clips(model, bundle, ids, seq_length, max_steps, stop)
     if trajs is None:
         return None

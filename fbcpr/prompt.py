@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Literal, Union
 import numpy as np
 import torch
 
+from fbcpr.errors import FBCPRError
 from fbcpr.latents import TEMPERATURE, reward_weights, tracking_sums
 
 if TYPE_CHECKING:
@@ -37,7 +38,7 @@ MotionSpec = Union["Clip", str, Path, np.ndarray, torch.Tensor]
 N_REWARD_SAMPLES = 100_000
 
 
-class PromptError(ValueError):
+class PromptError(FBCPRError, ValueError):
     """A prompt that cannot be turned into a z (unknown task, wrong shape, empty buffer, ...)."""
 
 

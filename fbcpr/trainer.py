@@ -7,9 +7,11 @@ through `fbcpr.protocols.OnlineAgent`; z is its rollout latent (empty for single
 motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the
 model, the exact learner state (target nets, optimisers, normaliser, counters, RNG states, env states and
 optionally the replay buffer) and a reward-inference subsample of the buffer. SIGINT/SIGTERM ends the
-run at the next safe point with a final checkpoint. Optional packages degrade with one warning each: without
-tensorboard metrics go to metrics.csv only; without any EMD solver (POT, or scipy for the equal-length
-fallback) tracking evaluation and the priority refresh are skipped.
+run at the next safe point with a final checkpoint. Under torchrun every rank runs this loop on its own envs and
+replay shard with a replica of the learner, kept identical by `fbcpr.distributed` (gradients averaged over ranks,
+normaliser statistics merged); step counts and periods are global, and only rank 0 writes. Optional packages
+degrade with one warning each: without tensorboard metrics go to metrics.csv only; without any EMD solver (POT, or
+scipy for the equal-length fallback) tracking evaluation and the priority refresh are skipped.
 """
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -46,7 +48,8 @@ from fbcpr.checkpoint import (
     remove_stale_temporaries,
     save_checkpoint,
 )
-from fbcpr.config import Config, ConfigError
+from fbcpr import distributed
+from fbcpr.config import Config, ConfigError, TrainConfig
 from fbcpr.envs import EnvBundle, make_env, tracking_scores
 from fbcpr.evaluation.metrics import EMDUnavailable
 from fbcpr.methods import get_method
@@ -86,13 +89,21 @@ class Trainer:
                  evaluate: Callable[[OnlineAgent], dict[str, float]] | None = None, progress: bool = True,
                  init_from: str | Path | None = None) -> None:
         self.out = Path(out_dir)
-        self.progress_enabled = progress
         self.custom_eval = evaluate
         tc = cfg.train
         if tc.torch_threads:
             torch.set_num_threads(tc.torch_threads)
-        self.device = resolve_device(tc.device)  # device and env fail before the run directory exists
-        self.bundle: EnvBundle = make_env(cfg.env, tc.num_envs, tc.seed)
+        # device and env fail before the run directory exists
+        self.replicas, self.device = distributed.setup(resolve_device(tc.device), tc.dist_timeout_s, tc.dist_backend)
+        r = self.replicas
+        self.progress_enabled = progress and r.is_main
+        check_world_size(cfg, r.world_size)
+        r.check_replicated({"config": torch.frombuffer(bytearray(config_json(cfg).encode()), dtype=torch.uint8)},
+                           "the run config")
+        seed = tc.seed + r.rank  # this rank's envs and random streams (rank 0: those of a single process)
+        # ranks on one machine share its cores for physics (one process: all of them, as MuJoCo's default)
+        threads = max(1, (os.cpu_count() or 1) // r.local_world_size) if r.local_world_size > 1 else None
+        self.bundle: EnvBundle = make_env(cfg.env, tc.num_envs, seed, threads)
         b = self.bundle
         for key, have in (("obs_dim", b.obs_dim), ("action_dim", b.action_dim)):
             given = getattr(cfg.model, key)
@@ -101,20 +112,26 @@ class Trainer:
         self.cfg = cfg = replace(cfg, model=replace(cfg.model, obs_dim=b.obs_dim, action_dim=b.action_dim))
         if cfg.agent.batch_size > tc.buffer_capacity:
             raise ConfigError("train.buffer_capacity: must be >= agent.batch_size")
-        self._memmap_buffer = check_memory(cfg, b.nq, b.nv, self.out, self.device)
+        self._memmap_buffer = check_memory(cfg, b.nq, b.nv, self.out, self.device, copies=r.local_world_size)
 
-        random.seed(tc.seed)
-        np.random.seed(tc.seed)
-        self.rng = np.random.default_rng(tc.seed)
-        self.agent = get_method(cfg.algorithm).agent(cfg, b, self.device, tc.seed)
+        random.seed(seed)
+        np.random.seed(seed)
+        self.rng = np.random.default_rng(seed)
+        if r.enabled:  # parts an agent initialises before seeding (an imitation reward's network) included
+            torch.manual_seed(tc.seed)
+        self.agent = get_method(cfg.algorithm).agent(cfg, b, self.device, tc.seed)  # the same weights on every rank
+        if r.enabled:
+            torch.manual_seed(seed)
+            self.agent.generator.manual_seed(seed)
         self.warm_started = init_from is not None and not resume
         if self.warm_started:
             self._warm_start(init_from)
         self.out.mkdir(parents=True, exist_ok=True)
-        if (self.out / "checkpoints").is_dir():
+        if r.is_main and (self.out / "checkpoints").is_dir():
             remove_stale_temporaries(self.out / "checkpoints")
         specs = transition_specs(b.obs_dim, b.action_dim, self.agent.z_dim, b.nq, b.nv)
-        self.buffer = ReplayBuffer(tc.buffer_capacity, specs, self.out / "buffer_mmap" if self._memmap_buffer else None)
+        mmap = self.out / ("buffer_mmap" if r.is_main else f"buffer_mmap_rank{r.rank}")
+        self.buffer = ReplayBuffer(tc.buffer_capacity, specs, mmap if self._memmap_buffer else None)
 
         self.env_steps = self.updates = self.episodes = 0
         self.next_priority = tc.priority_every or math.inf
@@ -126,17 +143,20 @@ class Trainer:
         self._action_stats = np.zeros(3)  # sum |a|, saturated components, components (policy actions only)
         self._warned: set[str] = set()
         self._stop = False
+        self._agreed_stop = False  # under torchrun: the stop decision every rank took together at the last phase end
         self._deadline = math.inf  # time.monotonic() at which run() stops (its `deadline`)
         self._saved_at: int | None = None  # env steps of the checkpoint on disk (none yet)
         # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands for
         self._carried: dict[str, np.ndarray] | None = None
         self._carried_weight = 0
         self._last_line = 0.0
-        self.obs, info = b.env.reset(seed=tc.seed)
+        self.obs, info = b.env.reset(seed=seed)
         self.z = self._sample_rollout_z(tc.num_envs)
         self.z_age = np.zeros(tc.num_envs, dtype=np.int64)
         if resume:
             self._resume()
+        if r.enabled:
+            r.check_replicated(self._learner_state(*self.agent.state()), "the learner state")
         self.csv_path = self.out / "metrics.csv"
         self._writer: Any = None  # SummaryWriter once created, False where tensorboard is missing
 
@@ -161,7 +181,7 @@ class Trainer:
         stop_at = tc.total_env_steps if max_env_steps is None else min(tc.total_env_steps, self.env_steps + max_env_steps)
         handlers = self._install_signals()
         t0, steps0 = time.perf_counter(), self.env_steps
-        steps_per_phase = max(1, math.ceil(tc.rollout_steps / tc.num_envs))
+        steps_per_phase = phase_steps(tc, self.replicas.world_size)
         try:
             with self._progress(stop_at) as (progress, task):
                 while self.env_steps < stop_at and not self._halt():
@@ -169,7 +189,8 @@ class Trainer:
                         self._env_step()
                         if self._halt():
                             break
-                    if self.env_steps >= tc.warmup_steps and len(self.buffer) >= self.cfg.agent.batch_size:
+                    ready = self._agree()
+                    if self.env_steps >= tc.warmup_steps and ready >= self.cfg.agent.batch_size:
                         for _ in range(tc.updates_per_rollout):
                             if self._halt():
                                 break
@@ -190,8 +211,21 @@ class Trainer:
                 "interrupted": self._stop, "seconds": time.perf_counter() - t0, **self.last_metrics}
 
     def _halt(self) -> bool:
-        """Stop at the next safe point: a stop signal came, or the run's deadline passed."""
+        """Stop at the next safe point: a stop signal came, or the run's deadline passed (under torchrun: the ranks
+        agreed so at the end of the last rollout, see `_agree`)."""
+        if self.replicas.enabled:
+            return self._agreed_stop
         return self._stop or time.monotonic() >= self._deadline
+
+    def _agree(self) -> int:
+        """Once per rollout phase, the decisions every rank takes together: stop (any rank got a signal or passed
+        its deadline) and the fill of the emptiest replay shard (updates start when every shard holds a batch).
+        A single process decides alone."""
+        if not self.replicas.enabled:
+            return len(self.buffer)
+        self._agreed_stop, ready = self.replicas.agree(self._stop or time.monotonic() >= self._deadline,
+                                                       len(self.buffer))
+        return ready
 
     def _env_step(self) -> None:
         tc, agent, env = self.cfg.train, self.agent, self.bundle.env
@@ -214,34 +248,40 @@ class Trainer:
         self.z_age += 1
         self.z_age[done] = tc.z_update_every  # a new episode gets a new z
         self.episodes += int(done.sum())
-        self.env_steps += n
+        self.env_steps += n * self.replicas.world_size  # global: every rank steps in lockstep
 
     def _update(self) -> None:
         a = self.cfg.agent
         batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields)
         windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, a.batch_size // a.seq_length, a.seq_length))
-        self.last_metrics = self.agent.update(batch, windows)
+        with self.replicas.synchronized():
+            self.last_metrics = self.agent.update(batch, windows)
         self.updates += 1
 
     # --------------------------------------------------------------------------------- periodic work
     def _periodic(self, t0: float, steps0: int, stop_at: int) -> None:
         tc = self.cfg.train
         extra: dict[str, float] = {}
-        if self.env_steps >= self.next_priority or self.env_steps >= self.next_eval:
+        evaluated = self.env_steps >= self.next_priority or self.env_steps >= self.next_eval
+        if evaluated:
             extra.update(self.evaluate(refresh_priorities=self.env_steps >= self.next_priority))
             while self.next_priority <= self.env_steps:
                 self.next_priority += tc.priority_every
             while self.next_eval <= self.env_steps:
                 self.next_eval += tc.eval_every
-        if self.env_steps >= self.next_log or extra:
+        # one process logs an evaluation that gave metrics; ranks log whenever they evaluated (the custom hook runs on
+        # rank 0 only, so its metrics cannot decide for all, and a log row takes every rank's counts)
+        if self.env_steps >= self.next_log or (evaluated if self.replicas.enabled else extra):
             fps = (self.env_steps - steps0) / max(time.perf_counter() - t0, 1e-9)
-            row = {"env_steps": self.env_steps, "updates": self.updates, "episodes": self.episodes,
-                   "env_steps_per_s": fps, **self.last_metrics, **self._take_action_stats(), **extra}
-            if self.buffer.dropped:
-                row["buffer_dropped"] = self.buffer.dropped
+            episodes, dropped = self.replicas.sum(np.array([self.episodes, self.buffer.dropped], dtype=np.float64))
+            row = {"env_steps": self.env_steps, "updates": self.updates, "episodes": int(episodes),
+                   "env_steps_per_s": fps, **self.replicas.mean_metrics(self.last_metrics), **self._take_action_stats(),
+                   **extra}
+            if dropped:
+                row["buffer_dropped"] = int(dropped)
             self._log(row)
             self._warn(row)
-            if not self.progress_enabled:
+            if self.replicas.is_main and not self.progress_enabled:
                 self._log_line(stop_at, fps)
             while self.next_log <= self.env_steps:
                 self.next_log += tc.log_every
@@ -252,18 +292,21 @@ class Trainer:
 
     def evaluate(self, refresh_priorities: bool = False) -> dict[str, float]:
         """Track the clips (tracking EMD / success), optionally refresh priorities, plus the custom eval hook."""
-        tc = self.cfg.train
+        tc, r = self.cfg.train, self.replicas
+        custom = self.custom_eval if r.is_main else None  # the custom hook runs once, on rank 0
         if not self.agent.z_dim:  # a single-task agent has no tracking prompt: only the custom hook
-            return {f"eval/{k}": float(v) for k, v in self.custom_eval(self.agent).items()} if self.custom_eval else {}
+            return {f"eval/{k}": float(v) for k, v in custom(self.agent).items()} if custom else {}
         rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
         out: dict[str, float] = {}
-        try:
+        failed = False
+        try:  # under torchrun each rank tracks its share of the clips
             scores = tracking_scores(self.agent.model, self.bundle, self.cfg.agent.seq_length, tc.priority_max_clips,
-                                     self.cfg.env.max_episode_steps, rng, stop=self._halt)
+                                     self.cfg.env.max_episode_steps, rng, stop=self._halt, shard=(r.rank, r.world_size))
         except EMDUnavailable as err:  # a run must not die for a missing metric package
             warnings.warn(f"tracking evaluation and priority refresh skipped, priorities stay as they are: {err}",
                           RuntimeWarning, stacklevel=2)
-            scores = {}
+            scores, failed = {}, True
+        scores = self._gather_scores(scores, failed)
         if scores is None:  # stopped mid-episode: no partial scores, priorities untouched
             return {}
         if scores:
@@ -273,26 +316,46 @@ class Trainer:
             if refresh_priorities:
                 fill = float(np.median(list(self.emd.values())))
                 self.bundle.library.set_priorities_from_emd({n: self.emd.get(n, fill) for n in self.bundle.library.names})
-        if self.custom_eval is not None:
-            out.update({f"eval/{k}": float(v) for k, v in self.custom_eval(self.agent).items()})
+        if custom is not None:
+            out.update({f"eval/{k}": float(v) for k, v in custom(self.agent).items()})
         return out
+
+    def _gather_scores(self, scores: dict[str, tuple[float, bool]] | None,
+                       failed: bool) -> dict[str, tuple[float, bool]] | None:
+        """Every rank's share of the tracking scores, on every rank (library order), so that all set the same
+        priorities; None when any rank was stopped, {} when any lacked the EMD. One process: its own scores."""
+        if not self.replicas.enabled:
+            return scores
+        names = self.bundle.library.names
+        rows = np.zeros((len(names) + 1, 3))  # per clip: EMD, success, tracked; last row: stopped, failed
+        rows[-1, :2] = scores is None, failed
+        for name, (e, ok) in (scores or {}).items():
+            rows[names.index(name)] = e, ok, 1.0
+        rows = self.replicas.sum(rows)
+        if rows[-1, 0]:
+            return None
+        if rows[-1, 1]:
+            return {}
+        return {n: (float(e), bool(ok)) for n, (e, ok, tracked) in zip(names, rows[:-1]) if tracked}
 
     def _take_action_stats(self) -> dict[str, float]:
         """Mean |action| and the saturated share of the policy's rollout actions since the last log row."""
-        total, saturated, count = self._action_stats
+        total, saturated, count = self.replicas.sum(self._action_stats)
         self._action_stats[:] = 0
         return {"action_abs": total / count, "action_saturated": saturated / count} if count else {}
 
     def _warn(self, row: dict[str, float]) -> None:
         """Say plainly, once per run and signature, when training heads where failed public runs went."""
         for name, test, message in WARNINGS:
-            if name not in self._warned and test(row):
+            if self.replicas.is_main and name not in self._warned and test(row):
                 self._warned.add(name)
                 Console(stderr=True).print(f"[yellow]warning at {self.env_steps:,} env steps: {message}[/]")
                 with open(self.out / "warnings.txt", "a") as f:
                     f.write(f"{self.env_steps}\t{name}\t{message}\n")
 
     def _log(self, row: dict[str, float]) -> None:
+        if not self.replicas.is_main:
+            return
         if self._writer is None:
             self._writer = _summary_writer(self.out / "tb") or False
         if self._writer:
@@ -309,11 +372,17 @@ class Trainer:
 
     # --------------------------------------------------------------------------------- checkpoints
     def save(self) -> Path:
-        """Checkpoint into out/checkpoints/step_XXXXXXXXXX and point out/checkpoints/latest at it."""
-        tc = self.cfg.train
+        """Checkpoint into out/checkpoints/step_XXXXXXXXXX and point out/checkpoints/latest at it (rank 0 writes,
+        once every rank's learner is checked to be bit-identical to it; the rollout state is rank 0's)."""
+        tc, r = self.cfg.train, self.replicas
         root = self.out / "checkpoints"
         path = root / f"step_{self.env_steps:010d}"
         tensors, meta = self.agent.state()
+        r.check_replicated(self._learner_state(tensors, meta), "the learner state")
+        episodes = int(r.sum(np.array([self.episodes], dtype=np.float64))[0])
+        if not r.is_main:
+            self._saved_at = self.env_steps
+            return path
         tensors.update({"torch_rng": torch.get_rng_state(), "env_qpos": torch.as_tensor(self._env_state()[0]),
                         "env_qvel": torch.as_tensor(self._env_state()[1]), "env_obs": torch.as_tensor(self.obs),
                         "z": self.z.cpu(), "z_age": torch.as_tensor(self.z_age),
@@ -323,7 +392,7 @@ class Trainer:
             tensors["cuda_rng"] = torch.cuda.get_rng_state()
         py_state = random.getstate()
         meta.update({
-            "env_steps": self.env_steps, "updates": self.updates, "episodes": self.episodes,
+            "env_steps": self.env_steps, "updates": self.updates, "episodes": episodes, "world_size": r.world_size,
             "next_priority": _num(self.next_priority), "next_eval": _num(self.next_eval),
             "next_ckpt": _num(self.next_ckpt), "next_log": self.next_log, "emd": self.emd,
             "numpy_rng": self.rng.bit_generator.state, "numpy_global": _np_global_state(),
@@ -343,6 +412,14 @@ class Trainer:
             if p != path:
                 discard_checkpoint(p)
         return path
+
+    def _learner_state(self, tensors: dict[str, torch.Tensor], meta: dict[str, Any]) -> dict[str, torch.Tensor]:
+        """What must be identical on every rank: the model and the agent's state tensors (targets, optimiser moments,
+        imitation rewards), without its random streams (entries named `*generator`, which differ by rank)."""
+        learner = {f"model.{k}": v for k, v in self.agent.model.state_dict().items()}
+        learner.update({k: v for k, v in tensors.items() if not k.endswith("generator")})
+        learner["updates"] = torch.tensor([self.updates, int(meta.get("num_updates", 0))])
+        return learner
 
     def _checkpoint_path(self) -> Path:
         return self.out / "checkpoints" / f"step_{self.env_steps:010d}"
@@ -376,6 +453,7 @@ class Trainer:
         if self.buffer.memmap_dir is not None:
             self.buffer.data.clear()
             shutil.rmtree(self.buffer.memmap_dir, ignore_errors=True)
+        self.replicas.close()
 
     def _env_state(self) -> tuple[np.ndarray, np.ndarray]:
         env = self.bundle.env
@@ -401,11 +479,14 @@ class Trainer:
         self.agent.sync_targets()
 
     def _resume(self) -> None:
+        """Continue from the latest checkpoint. Every rank loads the learner state (model, targets, optimisers,
+        counters, priorities); rank 0 also its rollout state (envs, random streams, replay buffer), while the
+        other ranks of a torchrun start fresh shards, seeded from the base seed, their rank and the step."""
         ckpt = load_checkpoint(latest_checkpoint(self.out / "checkpoints"), self.device)
         load_state_strict(self.agent.model, ckpt.model.state_dict(), str(ckpt.path / "model.safetensors"))
         tensors, meta = ckpt.trainer_state()
         saved_envs = tensors["env_qpos"].shape[0] if "env_qpos" in tensors else self.cfg.train.num_envs
-        if saved_envs != self.cfg.train.num_envs:
+        if saved_envs != self.cfg.train.num_envs and self.replicas.is_main:
             raise ConfigError(f"train.num_envs: {self.cfg.train.num_envs}, but {ckpt.path} was saved with "
                               f"{saved_envs} envs; resume with num_envs: {saved_envs} (or start a new run)")
         self.agent.load_state(tensors, meta)
@@ -413,6 +494,11 @@ class Trainer:
             self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
             self.next_priority, self.next_eval = _inf(meta["next_priority"]), _inf(meta["next_eval"])
             self.next_ckpt, self.next_log, self.emd = _inf(meta["next_ckpt"]), meta["next_log"], meta["emd"]
+            self.bundle.library.priorities = tensors["priorities"].numpy().copy()
+            self._saved_at = self.env_steps
+            if not self.replicas.is_main:
+                self._fresh_shard()
+                return
             self.rng.bit_generator.state = meta["numpy_rng"]
             np.random.set_state(tuple(meta["numpy_global"]))
             v, st, gauss = meta["python_rng"]
@@ -420,7 +506,6 @@ class Trainer:
             torch.set_rng_state(tensors["torch_rng"])
             if "cuda_rng" in tensors and torch.cuda.is_available():
                 torch.cuda.set_rng_state(tensors["cuda_rng"])
-            self.bundle.library.priorities = tensors["priorities"].numpy().copy()
             self.z = tensors["z"].to(self.device)
             self.z_age = tensors["z_age"].numpy().copy()
             self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(), "qvel": tensors["env_qvel"].numpy()})
@@ -428,7 +513,6 @@ class Trainer:
             _episode_counter(self.bundle.env)[:] = tensors["env_episode_steps"].numpy()
         except KeyError as e:
             raise CheckpointError(f"{ckpt.path}/trainer_state.safetensors: missing entry {e}") from None
-        self._saved_at = self.env_steps
         replay = ckpt.replay_buffer()
         if replay is not None:
             self.buffer.load_state(*replay)
@@ -444,6 +528,20 @@ class Trainer:
                     "merged with the new transitions")
         self._notice(f"resume: {ckpt.path} has no replay buffer (train.save_buffer: false), so training continues "
                      f"from an empty buffer; {lost}. Set train.save_buffer: true for an exact resume.")
+
+    def _fresh_shard(self) -> None:
+        """A resumed rank other than 0: new envs, random streams and latents, seeded from (seed + rank, env steps)
+        so they neither repeat the run's start nor depend on the world size of the run that saved the checkpoint."""
+        self.episodes = 0
+        seeds = np.random.SeedSequence((self.cfg.train.seed + self.replicas.rank, self.env_steps)).generate_state(4)
+        random.seed(int(seeds[0]))
+        np.random.seed(int(seeds[0]))
+        self.rng = np.random.default_rng(int(seeds[1]))
+        torch.manual_seed(int(seeds[2]))
+        self.agent.generator.manual_seed(int(seeds[2]))
+        self.obs, _ = self.bundle.env.reset(seed=int(seeds[3]))
+        self.z = self._sample_rollout_z(self.cfg.train.num_envs)
+        self.z_age = np.zeros(self.cfg.train.num_envs, dtype=np.int64)
 
     # --------------------------------------------------------------------------------- plumbing
     def _install_signals(self) -> dict[int, Any]:
@@ -468,7 +566,9 @@ class Trainer:
         return old
 
     def _notice(self, message: str) -> None:
-        """A yellow line on stderr that is also kept in the run's warnings.txt."""
+        """A yellow line on stderr that is also kept in the run's warnings.txt (rank 0's only)."""
+        if not self.replicas.is_main:
+            return
         Console(stderr=True).print(f"[yellow]{message}[/]", highlight=False)
         with open(self.out / "warnings.txt", "a") as f:
             f.write(f"{self.env_steps}\tnotice\t{message}\n")
@@ -527,35 +627,72 @@ def _memory_bytes(device: torch.device) -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device) -> bool:
+def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device, copies: int = 1) -> bool:
     """Estimate the model's and the replay buffer's memory before allocating either, and raise ConfigError
     naming the key to lower when they cannot fit, instead of an allocation failing (or the OOM killer striking)
-    minutes later. Returns whether the buffer is memory-mapped (over train.buffer_memmap_mb)."""
+    minutes later; CheckpointError when the disk at `out` cannot hold one checkpoint. `copies`: processes of this
+    run on this machine (torchrun's ranks), each holding a model and a replay shard. Returns whether the buffer is
+    memory-mapped (over train.buffer_memmap_mb)."""
     tc = cfg.train
     with torch.device("meta"):  # shapes only: no memory is allocated
         model = get_method(cfg.algorithm).model(cfg.model)
     params = sum(p.numel() for p in model.parameters())
     need, have = params * BYTES_PER_PARAMETER, _memory_bytes(device)
+    if device.type == "cpu":
+        need *= copies
     if need > have:
         raise ConfigError(f"model: {params / 1e6:,.0f}M parameters need about {need / 2**30:,.1f} GiB to train, "
                           f"more than the {have / 2**30:,.1f} GiB of {device.type} memory; lower model.hidden_dim, "
                           "model.hidden_layers or model.preset")
     specs = transition_specs(cfg.model.obs_dim, cfg.model.action_dim, getattr(model, "z_dim", 0), nq, nv)
-    buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs)
+    buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) * copies
     memmap = buffer > tc.buffer_memmap_mb * 2**20
-    if memmap:
-        folder = next(p for p in (out, *out.absolute().parents) if p.exists())
-        free = shutil.disk_usage(folder).free
-        if buffer > free:
-            raise ConfigError(f"train.buffer_capacity: the memory-mapped replay buffer needs {buffer / 2**30:,.1f} GiB "
-                              f"on disk, more than the {free / 2**30:,.1f} GiB free at {folder}")
-    else:
-        ram = _memory_bytes(torch.device("cpu"))
-        if buffer + (need if device.type == "cpu" else 0) > ram:
-            raise ConfigError(f"train.buffer_capacity: the replay buffer needs {buffer / 2**30:,.1f} GiB of memory, "
-                              f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
-                              "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
+    folder = next(p for p in (out, *out.absolute().parents) if p.exists())
+    free = shutil.disk_usage(folder).free
+    if memmap and buffer > free:
+        raise ConfigError(f"train.buffer_capacity: the memory-mapped replay buffer needs {buffer / 2**30:,.1f} GiB "
+                          f"on disk, more than the {free / 2**30:,.1f} GiB free at {folder}")
+    ram = _memory_bytes(torch.device("cpu"))
+    if not memmap and buffer + (need if device.type == "cpu" else 0) > ram:
+        raise ConfigError(f"train.buffer_capacity: the replay buffer needs {buffer / 2**30:,.1f} GiB of memory, "
+                          f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
+                          "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
+    # a full disk fails here, in one line, before TensorBoard's writer thread would fail with a long traceback.
+    # One checkpoint: weights, two Adam moments and targets (4 copies), the reward sample, the buffer if saved.
+    ckpt = params * 16 + tc.reward_buffer_size * (cfg.model.obs_dim + nq + nv) * 4 + (buffer if tc.save_buffer else 0)
+    if ckpt + (buffer if memmap else 0) > free:
+        raise CheckpointError(f"{folder}: {free / 2**20:,.0f} MiB free on disk, but one checkpoint of this run needs "
+                              f"about {ckpt / 2**20:,.0f} MiB" + (f" beside the {buffer / 2**20:,.0f} MiB "
+                              "memory-mapped replay buffer" if memmap else "") + "; free space or choose another --out")
     return memmap
+
+
+def phase_steps(tc: TrainConfig, world_size: int) -> int:
+    """Vector-env steps each rank takes per rollout phase: rollout_steps global env steps shared by the ranks."""
+    return max(1, math.ceil(tc.rollout_steps / (tc.num_envs * world_size)))
+
+
+def check_world_size(cfg: Config, world_size: int) -> None:
+    """ConfigError unless `world_size` ranks run `cfg` at the update-to-data ratio of one process: a phase must
+    collect as many global env steps as one process collects (ranks x phase_steps x num_envs); an exact resume
+    (train.save_buffer) holds for one process only (the other ranks' replay shards are not saved)."""
+    if world_size <= 1:
+        return
+    tc = cfg.train
+    single = phase_steps(tc, 1)
+    if phase_steps(tc, world_size) * world_size != single:
+        fits = [w for w in range(1, single + 1) if phase_steps(tc, w) * w == single]
+        raise ConfigError(f"train.rollout_steps: {tc.rollout_steps} env steps per phase with train.num_envs: "
+                          f"{tc.num_envs} envs per rank do not split over {world_size} ranks without changing the "
+                          f"update-to-data ratio; world sizes that fit: {fits}")
+    if tc.save_buffer:
+        raise ConfigError(f"train.save_buffer: an exact resume needs one process, and {world_size} ranks were "
+                          "launched (only rank 0 writes checkpoints); set it to false")
+
+
+def config_json(cfg: Config) -> str:
+    """The run config as canonical JSON (what the ranks of one run must agree on)."""
+    return json.dumps(asdict(cfg), sort_keys=True, default=str)
 
 
 def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Path]:
@@ -604,7 +741,8 @@ def train(cfg: Config, out_dir: str | Path, resume: bool = False, progress: bool
         summary = trainer.run()
     finally:
         trainer.close()
-    (Path(out_dir) / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    if trainer.replicas.is_main:
+        (Path(out_dir) / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
 
 

@@ -14,14 +14,12 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from humanoid_env.errors import InvalidActionError
+
 ACTION_MAPPINGS = ("rest", "mid")
 DEFAULT_ACTION_MAPPING = "rest"
 #: The mapping of checkpoints whose config predates the option.
 LEGACY_ACTION_MAPPING = "mid"
-
-
-class InvalidActionError(ValueError):
-    """An action that is not a finite array of numbers of the expected shape; the message names the action."""
 
 
 def check_action(action: object, shape: tuple[int, ...], name: str) -> np.ndarray:

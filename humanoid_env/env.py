@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap, check_action
+from humanoid_env.errors import EnvError, InvalidStateError
 from humanoid_env.model import N_SUBSTEPS, NQ, NU, NV, load_model
 from humanoid_env.observation import OBS_DIM, assemble, read_kinematics
 
@@ -58,9 +59,9 @@ def check_state(qpos: Any, qvel: Any, n: int | None = None) -> tuple[np.ndarray,
     qp, qv = np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
     want_p, want_v = ((NQ,), (NV,)) if n is None else ((n, NQ), (n, NV))
     if qp.shape != want_p or qv.shape != want_v:
-        raise ValueError(f"reset options: expected qpos {want_p} and qvel {want_v}, got {qp.shape} and {qv.shape}")
+        raise InvalidStateError(f"reset options: expected qpos {want_p} and qvel {want_v}, got {qp.shape} and {qv.shape}")
     if not (np.isfinite(qp).all() and np.isfinite(qv).all()):
-        raise ValueError("reset options: qpos and qvel must be finite (found NaN or inf)")
+        raise InvalidStateError("reset options: qpos and qvel must be finite (found NaN or inf)")
     return qp, qv
 
 
@@ -68,7 +69,7 @@ def _state_options(options: dict | None) -> tuple[Any, Any] | None:
     if not options or ("qpos" not in options and "qvel" not in options):
         return None
     if "qpos" not in options or "qvel" not in options:
-        raise ValueError("reset options: give both 'qpos' and 'qvel' to set an exact state")
+        raise InvalidStateError("reset options: give both 'qpos' and 'qvel' to set an exact state")
     return options["qpos"], options["qvel"]
 
 
@@ -90,9 +91,9 @@ class HumanoidEnv(gym.Env):
         action_mapping: str = DEFAULT_ACTION_MAPPING,
     ) -> None:
         if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+            raise EnvError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if max_episode_steps < 1:
-            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+            raise EnvError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
         from humanoid_env.inits import DefaultInit
 
         self.model = load_model()
@@ -139,7 +140,7 @@ class HumanoidEnv(gym.Env):
         self._steps = 0
         obs = self._observe()
         if not np.isfinite(obs).all():
-            raise ValueError("reset: the state's observation is not finite (qpos/qvel beyond float32 range?)")
+            raise InvalidStateError("reset: the state's observation is not finite (qpos/qvel beyond float32 range?)")
         self._obs = obs
         return self._obs, self._info(False)
 

@@ -11,6 +11,7 @@ from typing import Protocol, Sequence
 import mujoco
 import numpy as np
 
+from humanoid_env.errors import EnvError, InvalidStateError
 from humanoid_env.geometry import lowest_point
 from humanoid_env.model import NQ, NV, default_qpos, joint_ranges, load_model
 
@@ -54,7 +55,7 @@ def random_quaternions(rng: np.random.Generator, n: int) -> np.ndarray:
 
 def _check_n(n: int) -> None:
     if n < 0:
-        raise ValueError(f"number of states must be >= 0, got {n}")
+        raise EnvError(f"number of states must be >= 0, got {n}")
 
 
 class DefaultInit:
@@ -88,7 +89,7 @@ class FallInit:
         self, height: tuple[float, float] = (0.2, 1.0), vel_noise: float = 0.0, max_overlap: float = 0.01, tries: int = 20
     ) -> None:
         if not 0.0 <= height[0] <= height[1]:
-            raise ValueError(f"height must be a range 0 <= low <= high, got {height}")
+            raise EnvError(f"height must be a range 0 <= low <= high, got {height}")
         self.height, self.vel_noise = (float(height[0]), float(height[1])), float(vel_noise)
         self.max_overlap, self.tries = float(max_overlap), int(tries)
         self._geom = _Geometry()
@@ -124,7 +125,7 @@ class MocapInit:
         qpos, qvel = self.source.sample_states(rng, n)
         qpos, qvel = np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
         if qpos.shape != (n, NQ) or qvel.shape != (n, NV):
-            raise ValueError(f"motion library returned qpos {qpos.shape} and qvel {qvel.shape}, expected ({n},{NQ}) and ({n},{NV})")
+            raise InvalidStateError(f"motion library returned qpos {qpos.shape} and qvel {qvel.shape}, expected ({n},{NQ}) and ({n},{NV})")
         return qpos, qvel
 
 
@@ -134,7 +135,7 @@ class MixtureInit:
     def __init__(self, components: Sequence[object], weights: Sequence[float]) -> None:
         w = np.asarray(weights, dtype=np.float64)
         if len(components) == 0 or w.shape != (len(components),) or (w < 0).any() or w.sum() <= 0:
-            raise ValueError(f"MixtureInit needs one non-negative weight per component with a positive sum, got {list(weights)}")
+            raise EnvError(f"MixtureInit needs one non-negative weight per component with a positive sum, got {list(weights)}")
         self.components, self.weights = list(components), w / w.sum()
 
     def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -151,6 +152,6 @@ class MixtureInit:
 def make_init(fall_prob: float, mocap: StateSource | None = None) -> MixtureInit:
     """Fall with probability fall_prob, otherwise MoCap states (or the standing pose when no library is given)."""
     if not 0.0 <= fall_prob <= 1.0:
-        raise ValueError(f"fall_prob must be in [0, 1], got {fall_prob}")
+        raise EnvError(f"fall_prob must be in [0, 1], got {fall_prob}")
     base = MocapInit(mocap) if mocap is not None else DefaultInit()
     return MixtureInit([base, FallInit()], [1.0 - fall_prob, fall_prob])

@@ -31,6 +31,7 @@ from humanoid_env.env import (
     resolve_reward,
 )
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap, check_action
+from humanoid_env.errors import EnvError, InvalidStateError
 from humanoid_env.model import N_SUBSTEPS, NU, load_model
 from humanoid_env.observation import N_BODIES, OBS_DIM, assemble
 
@@ -54,11 +55,11 @@ class VectorHumanoidEnv(VectorEnv):
         action_mapping: str = DEFAULT_ACTION_MAPPING,
     ) -> None:
         if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+            raise EnvError(f"num_envs must be >= 1, got {num_envs}")
         if max_episode_steps < 1:
-            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+            raise EnvError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
         if num_threads is not None and num_threads < 1:
-            raise ValueError(f"num_threads must be >= 1 or None (all cores), got {num_threads}")
+            raise EnvError(f"num_threads must be >= 1 or None (all cores), got {num_threads}")
         from humanoid_env.inits import DefaultInit
 
         self.num_envs = int(num_envs)
@@ -101,7 +102,7 @@ class VectorHumanoidEnv(VectorEnv):
         obs = self._observe(ids)
         bad = ~np.isfinite(obs).all(axis=1)
         if bad.any():
-            raise ValueError(f"reset: the observation of envs {np.asarray(ids)[bad].tolist()} is not finite "
+            raise InvalidStateError(f"reset: the observation of envs {np.asarray(ids)[bad].tolist()} is not finite "
                              "(qpos/qvel beyond float32 range?)")
         self._obs[ids] = obs
         self._good_qpos[ids], self._good_qvel[ids] = qpos, qvel

@@ -425,8 +425,10 @@ def test_act_projects_z_onto_the_sphere():
     (3e38, 1.0, "obs: gives non-finite actions"), (1.0, 0.0, "z: must be nonzero"),
 ])
 def test_act_never_returns_non_finite_actions(obs_value, z_value, message):
+    from fbcpr.errors import InputError
+
     bfm = _bfm()
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(InputError, match=message):
         bfm.act(np.full(6, obs_value, dtype=np.float32), np.full(bfm.z_dim, z_value, dtype=np.float32))
 
 
@@ -510,6 +512,36 @@ def test_memory_is_estimated_up_front_naming_the_key(tmp_path, monkeypatch, trai
     with pytest.raises(ConfigError, match=message):
         trainer_mod.Trainer(cfg, tmp_path / "run", progress=False)
     assert not (tmp_path / "run").exists()
+
+
+def test_a_full_disk_fails_in_one_line_before_anything_is_written(tmp_path, monkeypatch):
+    import shutil
+
+    import fbcpr.trainer as trainer_mod
+    from fbcpr.checkpoint import CheckpointError
+    from fbcpr.config import config_from_dict
+
+    monkeypatch.setattr(trainer_mod.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(2**40, 2**40, 2**16))
+    cfg = config_from_dict({"model": {"preset": "tiny"}, "env": {"name": "toy"}, "train": {"num_envs": 2}})
+    with pytest.raises(CheckpointError, match=r"MiB free on disk, but one checkpoint of this run needs about"):
+        trainer_mod.Trainer(cfg, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("call, error", [
+    (lambda: __import__("fbcpr.evaluation.metrics", fromlist=["x"]).emd(np.zeros((0, 3)), np.zeros((2, 3))),
+     "fbcpr.errors:InputError"),
+    (lambda: __import__("humanoid_env.vector", fromlist=["x"]).VectorHumanoidEnv(0), "humanoid_env.errors:EnvError"),
+    (lambda: __import__("humanoid_env.vector", fromlist=["x"]).VectorHumanoidEnv(2).reset(
+        options={"qpos": np.zeros((3, 76)), "qvel": np.zeros((3, 75))}), "humanoid_env.errors:InvalidStateError"),
+    (lambda: __import__("fbcpr.config", fromlist=["x"]).config_from_dict({"nope": 1}), "fbcpr.errors:FBCPRError"),
+])
+def test_bad_input_ends_in_the_packages_own_error_types(call, error):
+    import importlib
+
+    module, name = error.split(":")
+    with pytest.raises(getattr(importlib.import_module(module), name)):
+        call()
 
 
 def test_resume_with_other_num_envs_names_the_key(tmp_path):

@@ -10,6 +10,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
+from fbcpr.errors import InputError
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING
 from humanoid_env.model import NU
 from humanoid_env.observation import OBS_DIM
@@ -46,14 +47,14 @@ class _Floor:
     def track_z(self, obs_seq: np.ndarray) -> np.ndarray:
         seq = np.asarray(obs_seq)
         if seq.ndim != 2 or seq.shape[1] != OBS_DIM:
-            raise ValueError(f"track_z: expected (T, {OBS_DIM}) observations, got {seq.shape}")
+            raise InputError(f"track_z: expected (T, {OBS_DIM}) observations, got {seq.shape}")
         return np.zeros((len(seq), 0), np.float32)
 
 
 def _check_obs(obs: np.ndarray, who: str) -> np.ndarray:
     arr = np.asarray(obs)
     if arr.shape[-1] != OBS_DIM:
-        raise ValueError(f"{who}: expected observations with last dimension {OBS_DIM}, got {arr.shape}")
+        raise InputError(f"{who}: expected observations with last dimension {OBS_DIM}, got {arr.shape}")
     return arr
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fbcpr.errors import InputError
 from humanoid_env.observation import BODY_LINVEL, BODY_POS, OBS_DIM, POSE
 
 POSE_DIM = POSE.stop - POSE.start
@@ -28,10 +29,10 @@ def pose_part(x: np.ndarray, who: str = "pose_part") -> np.ndarray:
     """The pose part of observations (..., 358) or pose vectors (..., 214), as float64."""
     arr = np.asarray(x, dtype=np.float64)
     if arr.ndim == 0 or arr.shape[-1] not in (OBS_DIM, POSE_DIM):
-        raise ValueError(f"{who}: expected last dimension {OBS_DIM} (observation) or {POSE_DIM} (pose), "
+        raise InputError(f"{who}: expected last dimension {OBS_DIM} (observation) or {POSE_DIM} (pose), "
                          f"got {arr.shape}")
     if not np.isfinite(arr).all():
-        raise ValueError(f"{who}: input contains NaN or inf")
+        raise InputError(f"{who}: input contains NaN or inf")
     return arr[..., POSE] if arr.shape[-1] == OBS_DIM else arr
 
 
@@ -55,7 +56,7 @@ def tracking_success(agent: np.ndarray, reference: np.ndarray, xi: float = TRACK
     """True when the agent stays within d_smpl <= xi of the reference at every step (time-aligned, equal length)."""
     a, r = pose_part(agent, "tracking_success"), pose_part(reference, "tracking_success")
     if a.ndim != 2 or a.shape != r.shape:
-        raise ValueError(f"tracking_success: trajectories must be (T, D) of equal shape, got {a.shape} and {r.shape}")
+        raise InputError(f"tracking_success: trajectories must be (T, D) of equal shape, got {a.shape} and {r.shape}")
     return bool((np.linalg.norm(a - r, axis=-1) <= xi).all())
 
 
@@ -64,7 +65,7 @@ def emd(agent: np.ndarray, reference: np.ndarray) -> float:
     with d_smpl as ground cost (POT's exact solver); insensitive to small time misalignments."""
     a, r = pose_part(agent, "emd"), pose_part(reference, "emd")
     if a.ndim != 2 or r.ndim != 2 or len(a) == 0 or len(r) == 0:
-        raise ValueError(f"emd: trajectories must be non-empty (T, D) arrays, got {a.shape} and {r.shape}")
+        raise InputError(f"emd: trajectories must be non-empty (T, D) arrays, got {a.shape} and {r.shape}")
     try:
         import ot
     except ModuleNotFoundError:
@@ -97,9 +98,9 @@ def dtw_pose_error(agent: np.ndarray, expert: np.ndarray) -> float:
 
     a, e = np.ascontiguousarray(agent, dtype=np.float64), np.ascontiguousarray(expert, dtype=np.float64)
     if a.ndim != 2 or e.ndim != 2 or a.shape[1] != e.shape[1] or not (len(a) and len(e)):
-        raise ValueError(f"dtw_pose_error: expected non-empty (T, D) trajectories, got {a.shape} and {e.shape}")
+        raise InputError(f"dtw_pose_error: expected non-empty (T, D) trajectories, got {a.shape} and {e.shape}")
     if not (np.isfinite(a).all() and np.isfinite(e).all()):
-        raise ValueError("dtw_pose_error: input contains NaN or inf")
+        raise InputError("dtw_pose_error: input contains NaN or inf")
     path = np.asarray(dtw_ndim.warping_path(a, e, inner_dist="euclidean", use_c=True))
     return float(np.linalg.norm(a[path[:, 0]] - e[path[:, 1]], axis=-1).mean())
 
@@ -108,7 +109,7 @@ def speed_profile(positions: np.ndarray, fps: float) -> np.ndarray:
     """|velocity| (T-1,) of a (T, 3) (or (T, 2)) position trajectory sampled at `fps` frames per second."""
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 2 or len(p) < 2:
-        raise ValueError(f"speed_profile: expected (T >= 2, D) positions, got {p.shape}")
+        raise InputError(f"speed_profile: expected (T >= 2, D) positions, got {p.shape}")
     return np.linalg.norm(np.diff(p, axis=0), axis=-1) * fps
 
 
@@ -118,7 +119,7 @@ def sparc(speed: np.ndarray, fps: float, pad_level: int = 4, cutoff_hz: float = 
     (at most `cutoff_hz`). Closer to 0 is smoother; compare an agent's with its expert's."""
     v = np.asarray(speed, dtype=np.float64)
     if v.ndim != 1 or len(v) < 2 or not np.isfinite(v).all():
-        raise ValueError(f"sparc: expected a finite (T >= 2,) speed profile, got shape {v.shape}")
+        raise InputError(f"sparc: expected a finite (T >= 2,) speed profile, got shape {v.shape}")
     if not v.any():
         return 0.0  # no motion: a flat spectrum of zero length
     nfft = int(2 ** (np.ceil(np.log2(len(v))) + pad_level))
@@ -140,7 +141,7 @@ def imitation_scores(agent: np.ndarray, reference: np.ndarray, fps: float = 30.0
     speed (body 0's linear velocity) for the agent and for the reference."""
     a, r = np.asarray(agent, dtype=np.float64), np.asarray(reference, dtype=np.float64)
     if a.ndim != 2 or r.ndim != 2 or a.shape[1] != OBS_DIM or r.shape[1] != OBS_DIM:
-        raise ValueError(f"imitation_scores: expected (T, {OBS_DIM}) observations, got {a.shape} and {r.shape}")
+        raise InputError(f"imitation_scores: expected (T, {OBS_DIM}) observations, got {a.shape} and {r.shape}")
     root_speed = slice(BODY_LINVEL.start, BODY_LINVEL.start + 3)
     return {"dtw": dtw_pose_error(a[:, BODY_POS], r[:, BODY_POS]),
             "sparc": sparc(np.linalg.norm(a[:, root_speed], axis=-1), fps),

@@ -15,6 +15,7 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from fbcpr.checkpoint import CheckpointError
+from fbcpr.errors import InputError
 from fbcpr.evaluation.agents import Agent, SingleTaskAgent, action_mapping
 from fbcpr.prompt import PromptError
 from fbcpr.evaluation.metrics import d_smpl, emd, goal_proximity, goal_success, imitation_scores, tracking_success
@@ -31,7 +32,7 @@ TEST_FALL_PROB = 0.5  # the paper mixes Fall and MoCap test states without givin
 def _batch_z(z: np.ndarray, n: int) -> np.ndarray:
     z = np.asarray(z, dtype=np.float32)
     if z.ndim != 1:
-        raise ValueError(f"a prompt must return one z vector (d,), got shape {z.shape}")
+        raise InputError(f"a prompt must return one z vector (d,), got shape {z.shape}")
     return np.broadcast_to(z, (n, z.shape[0])).copy()
 
 
@@ -184,7 +185,7 @@ def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch
         zs = [np.asarray(z, dtype=np.float32) for _, z in prompted if z is not None]
         for c, z in zip(group, zs):
             if z.ndim != 2 or len(z) < 1:
-                raise ValueError(f"track_z for clip {c.name!r} must return (T, d) latents, got shape {z.shape}")
+                raise InputError(f"track_z for clip {c.name!r} must return (T, d) latents, got shape {z.shape}")
         traj = np.empty((len(group), steps + 1, OBS_DIM), np.float32)
         traj[:, 0] = [c.obs[0] for c in group]
         dead = np.zeros(len(group), bool)
@@ -230,11 +231,11 @@ def _split_names(names: Iterable[str], motions: Any, wanted: Sequence[str]) -> d
             try:
                 get_reward(n)
             except ValueError as err:
-                raise ValueError(f"{n!r} is neither a goal pose, a clip of the motions nor a reward task "
+                raise InputError(f"{n!r} is neither a goal pose, a clip of the motions nor a reward task "
                                  f"({err})") from None
             suite = "reward"
         if suite not in wanted:
-            raise ValueError(f"{n!r} is a {suite} task, but the suite being run is {', '.join(wanted)}")
+            raise InputError(f"{n!r} is a {suite} task, but the suite being run is {', '.join(wanted)}")
         groups[suite].append(n)
     return groups
 
@@ -252,12 +253,12 @@ def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = Non
     from humanoid_env.tasks import GOALS, TASKS
 
     if suite not in (*SUITES, "all"):
-        raise ValueError(f"unknown suite {suite!r}: choose one of {', '.join(SUITES)} or all")
+        raise InputError(f"unknown suite {suite!r}: choose one of {', '.join(SUITES)} or all")
     if episodes < 1 or steps < 1:
-        raise ValueError(f"episodes and steps must be >= 1, got {episodes} and {steps}")
+        raise InputError(f"episodes and steps must be >= 1, got {episodes} and {steps}")
     wanted = SUITES if suite == "all" else (suite,)
     if "tracking" in wanted and motions is None:
-        raise ValueError("the tracking suite needs motions (a MotionLibrary)")
+        raise InputError("the tracking suite needs motions (a MotionLibrary)")
     clip_names = list(motions.names) if motions is not None else []
     single = isinstance(agent, SingleTaskAgent)  # evaluated on its own task: its reward, or the clips it imitates
     imitation = single and agent.imitation is not None

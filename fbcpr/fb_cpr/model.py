@@ -13,6 +13,7 @@ import torch
 from torch import Tensor, nn
 
 from fbcpr.config import ModelConfig
+from fbcpr.errors import InputError
 from fbcpr.networks import BackwardNet, Discriminator, ZConditionedNet, noisy_action, project_sphere
 from fbcpr.normalizer import RunningNormalizer
 
@@ -92,4 +93,4 @@ class FBCPRModel(nn.Module):
     @staticmethod
     def _check(x: Tensor, dim: int, name: str) -> None:
         if x.dim() != 2 or x.shape[1] != dim:
-            raise ValueError(f"{name}: expected shape (N, {dim}), got {tuple(x.shape)}")
+            raise InputError(f"{name}: expected shape (N, {dim}), got {tuple(x.shape)}")

@@ -10,6 +10,7 @@ import torch
 from torch import Tensor, nn
 
 from fbcpr.config import ModelConfig
+from fbcpr.errors import InputError
 from fbcpr.networks import Stack, noisy_action
 from fbcpr.normalizer import RunningNormalizer
 
@@ -52,7 +53,7 @@ class TD3Model(nn.Module):
         """Actions (N, action_dim) in [-1, 1] for raw observations (N, obs_dim); z is accepted and ignored."""
         obs_t = torch.as_tensor(obs, dtype=torch.float32, device=self.device)
         if obs_t.dim() != 2 or obs_t.shape[1] != self.cfg.obs_dim:
-            raise ValueError(f"obs: expected shape (N, {self.cfg.obs_dim}), got {tuple(obs_t.shape)}")
+            raise InputError(f"obs: expected shape (N, {self.cfg.obs_dim}), got {tuple(obs_t.shape)}")
         obs_n = self.normalize(obs_t)
         a = self.actor_mean(obs_n) if mean else self.actor_sample(obs_n, generator)
         return a.cpu().numpy() if isinstance(obs, np.ndarray) else a
