@@ -183,7 +183,11 @@ def test_distill_checkpoints_resume_and_track(bc_data, tmp_path):
     assert agent.info["steps"] == 5 and agent.info["expert"] == "tiny"
     obs = bc_data.obs[:6].numpy()
     zs = agent.track_z(obs)
-    assert zs.shape == (5, 4) and agent.act(obs[0], zs[0]).shape == (69,)
+    assert zs.shape == (5, 4) and agent.act(obs[0], zs[0]).shape == (69,) and agent.act(obs, zs[0]).shape == (6, 69)
+    from fbcpr.errors import InputError
+
+    with pytest.raises(InputError, match="z: expected"):
+        agent.act(obs, zs[:2])
     with pytest.raises(PromptError, match="no reward prompt"):
         agent.reward_z("move-ego-0-0")
     with pytest.raises(CheckpointError, match="NPMP checkpoint tracks clips"):

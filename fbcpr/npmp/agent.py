@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from fbcpr.errors import InputError
 from fbcpr.npmp.checkpoint import load_npmp
 from fbcpr.prompt import PromptError, motion_observations
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING
@@ -33,10 +34,13 @@ class NPMPAgent:
 
     def act(self, obs: Any, z: Any, mean: bool = True) -> np.ndarray:
         """Decoder mean actions (N, action_dim) for obs (N, obs_dim) or (obs_dim,) and z (N, d) or (d,)."""
-        o = torch.as_tensor(np.asarray(obs, np.float32))
-        single = o.dim() == 1
-        o = o.reshape(-1, self.obs_dim)
-        zt = torch.as_tensor(np.asarray(z, np.float32)).reshape(-1, self.z_dim).expand(o.shape[0], -1)
+        o, zt = torch.as_tensor(np.asarray(obs, np.float32)), torch.as_tensor(np.asarray(z, np.float32))
+        if o.dim() not in (1, 2) or o.shape[-1] != self.obs_dim:
+            raise InputError(f"obs: expected shape ({self.obs_dim},) or (N, {self.obs_dim}), got {tuple(o.shape)}")
+        single, o = o.dim() == 1, o.reshape(-1, self.obs_dim)
+        if zt.dim() not in (1, 2) or zt.shape[-1] != self.z_dim or (zt.dim() == 2 and zt.shape[0] not in (1, len(o))):
+            raise InputError(f"z: expected shape ({self.z_dim},) or ({len(o)}, {self.z_dim}), got {tuple(zt.shape)}")
+        zt = zt.reshape(-1, self.z_dim).expand(o.shape[0], -1)
         a = self.model.act(o, zt).cpu().numpy()
         return a[0] if single else a
 

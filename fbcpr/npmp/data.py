@@ -24,13 +24,15 @@ from safetensors import safe_open
 from safetensors.torch import save_file
 from torch import Tensor
 
+from fbcpr.errors import FBCPRError
+
 FORMAT, VERSION = "fbcpr-npmp-data", 1
 METHODS = ("bc", "lfpc")
 MAX_BYTES = 1 << 30
 _JAC_CHUNK = 64
 
 
-class DataError(ValueError):
+class DataError(FBCPRError, ValueError):
     """An expert dataset that is missing, malformed, too large or inconsistent; the message names the file/key."""
 
 
