@@ -54,8 +54,8 @@ def distill_command(
     seed: int = typer.Option(0, "--seed", min=0, help="Seed of the rollouts and of training."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its latest checkpoint."),
 ) -> None:
-    """Collect expert data from a BFM tracking every clip, then distil it into an NPMP (Ctrl-C keeps the last
-    checkpoint; --resume continues it)."""
+    """Collect expert data from a BFM tracking every clip, then distil it into an NPMP (Ctrl-C stops after the
+    current gradient step with a checkpoint; --resume continues it)."""
     from fbcpr.npmp.config import npmp_config
     from fbcpr.npmp.data import ExpertData
     from fbcpr.npmp.distill import distill
@@ -91,7 +91,8 @@ def distill_command(
 
         path, done = distill(out, data, cfg, steps, info, resume=resume, checkpoint_every=checkpoint_every,
                              on_update=report)
-    console.print(f"{done:,} gradient steps ({time.time() - start:.0f} s this session); checkpoint: {path}")
+    state = "stopped by a signal at" if done < steps else "finished:"
+    console.print(f"{state} {done:,} gradient steps ({time.time() - start:.0f} s this session); checkpoint: {path}")
 
 
 def _collect(expert: str, motions: Path, method: str, rollouts: int, noise: float, perturb: float, max_steps: int,

@@ -178,6 +178,7 @@ def test_distill_checkpoints_resume_and_track(bc_data, tmp_path):
         distill(tmp_path, bc_data, cfg, steps=5, info=info)
     path, steps = distill(tmp_path, bc_data, cfg, steps=5, info=info, resume=True)
     assert steps == 5 and sorted(p.name for p in (tmp_path / "checkpoints").glob("step_*")) == ["step_00000005"]
+    assert distill(tmp_path, bc_data, cfg, steps=5, info=info, resume=True) == (path, 5)  # nothing to do
     agent = make_agent(str(tmp_path))
     assert isinstance(agent, NPMPAgent) and isinstance(load_tracker(str(tmp_path)), NPMPAgent)
     assert agent.info["steps"] == 5 and agent.info["expert"] == "tiny"
@@ -254,6 +255,20 @@ def test_latent_optimisation_fits_the_expert_actions(bc_data):
     assert all(p.requires_grad for p in model.parameters())
     with pytest.raises(ValueError, match="same T"):
         optimise_latents(model, states, actions[:3], z0)
+
+
+def test_a_stop_signal_ends_distillation_with_a_checkpoint(bc_data, tmp_path):
+    import os
+    import signal
+
+    def interrupt(step: int, metrics: dict) -> None:
+        if step == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    path, steps = distill(tmp_path, bc_data, npmp_config(preset="tiny"), steps=50, info={}, checkpoint_every=10,
+                          on_update=interrupt)
+    assert steps == 2 and path.name == "step_00000002" and latest_checkpoint(tmp_path / "checkpoints") == path
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
 
 
 def test_checkpoint_round_trip_and_corruption(tmp_path):

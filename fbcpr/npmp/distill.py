@@ -14,6 +14,9 @@ Steps past an episode's end repeat its last frame and are masked out of the loss
 from __future__ import annotations
 
 import os
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable
 
@@ -26,6 +29,7 @@ from fbcpr.npmp.config import NPMPConfig
 from fbcpr.npmp.data import ExpertData
 from fbcpr.npmp.model import NPMPModel, kl_to_prior
 from fbcpr.optim_state import load_optimizer_state, optimizer_state
+from fbcpr.trainer import STOP_SIGNALS
 
 CHECKPOINTS = "checkpoints"
 
@@ -103,8 +107,8 @@ def distill(out: Path, data: ExpertData, cfg: NPMPConfig, steps: int, info: dict
             checkpoint_every: int = 500,
             on_update: Callable[[int, dict[str, float]], None] | None = None) -> tuple[Path, int]:
     """Train until `steps` gradient steps in total, checkpointing into out/checkpoints (latest only) every
-    `checkpoint_every` steps and at the end; `resume` continues from the latest checkpoint there (its config
-    wins). Returns the final checkpoint and the step count reached."""
+    `checkpoint_every` steps and at the end (also when a stop signal ends it early); `resume` continues from the
+    latest checkpoint there (its config wins). Returns the final checkpoint and the step count reached."""
     root = Path(out) / CHECKPOINTS
     if resume:
         ckpt = load_npmp(latest_checkpoint(root))
@@ -117,22 +121,52 @@ def distill(out: Path, data: ExpertData, cfg: NPMPConfig, steps: int, info: dict
         model = NPMPModel(cfg, data.obs.shape[1], data.action.shape[1])
         model.obs_normalizer.update(data.obs)  # fixed statistics of the expert states
         distiller = Distiller(model, data)
-    last = None
-    while distiller.steps < steps:
-        metrics = distiller.update()
-        if on_update is not None:
-            on_update(distiller.steps, metrics)
-        if distiller.steps % checkpoint_every == 0 or distiller.steps == steps:
-            last = _save(root, distiller, {**info, "metrics": metrics})
-    if last is None:  # nothing to train (already at `steps`): the latest checkpoint stands
-        last = latest_checkpoint(root) if (root / "latest").exists() else _save(root, distiller, info)
+    last = latest_checkpoint(root) if resume else None
+    metrics: dict[str, float] = {}
+    with _stop_on_signal() as stopped:
+        while distiller.steps < steps and not stopped():
+            metrics = distiller.update()
+            if on_update is not None:
+                on_update(distiller.steps, metrics)
+            if distiller.steps % checkpoint_every == 0 or distiller.steps == steps:
+                last = _save(root, distiller, {**info, "metrics": metrics})
+    if last is None or last.name != _step_name(distiller.steps):  # stopped between checkpoints
+        last = _save(root, distiller, {**info, "metrics": metrics})
     return last, distiller.steps
+
+
+@contextmanager
+def _stop_on_signal() -> Iterator[Callable[[], bool]]:
+    """The trainer's stop signals (SIGINT, SIGTERM, SIGHUP) end distillation after the current gradient step, with a
+    final checkpoint; a second one aborts at once (KeyboardInterrupt), the last checkpoint staying intact."""
+    flag = {"stop": False}
+
+    def handler(signum: int, frame: Any) -> None:
+        if flag["stop"]:
+            raise KeyboardInterrupt
+        flag["stop"] = True
+
+    old = {}
+    for sig in STOP_SIGNALS:
+        try:
+            old[sig] = signal.signal(sig, handler)
+        except ValueError:  # not the main thread: no handlers, Ctrl-C raises as usual
+            pass
+    try:
+        yield lambda: flag["stop"]
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def _step_name(steps: int) -> str:
+    return f"step_{steps:08d}"
 
 
 def _save(root: Path, distiller: Distiller, info: dict[str, Any]) -> Path:
     """Write step_XXXXXXXX, point `latest` at it, then drop the previous one."""
     previous = latest_checkpoint(root) if (root / "latest").exists() else None
-    path = save_npmp(root / f"step_{distiller.steps:08d}", distiller.model, {**info, "steps": distiller.steps},
+    path = save_npmp(root / _step_name(distiller.steps), distiller.model, {**info, "steps": distiller.steps},
                      distiller.state())
     tmp = root / ".latest.tmp"
     tmp.write_text(path.name)
