@@ -175,14 +175,16 @@ def _episodes(library: Any, method: str, rollouts: int, max_steps: int,
 
 def collect(bfm: Any, library: Any, method: str = "bc", rollouts: int = 10, noise: float = 0.1,
             max_steps: int = 300, perturb_scale: float = 0.1, seed: int = 0, max_bytes: int = MAX_BYTES,
-            on_step: Callable[[int, int], None] | None = None) -> ExpertData:
+            on_step: Callable[[int, int], None] | None = None,
+            make_env: Callable[[int, int], Any] | None = None) -> ExpertData:
     """Roll the expert out on every clip of `library` (all episodes as one batch of envs) and log its data.
 
     method "bc": `rollouts` noisy rollouts per clip (noise: std of the Gaussian action noise, actions in [-1, 1]);
     "lfpc": one noise-free rollout per clip plus Jacobians, and perturbations of std perturb_scale x the
     per-dimension std of the logged states. Episodes last to the clip's end, at most max_steps steps, and stop
-    early where the simulation diverges. on_step(done, total) reports progress."""
-    from humanoid_env.vector import VectorHumanoidEnv
+    early where the simulation diverges. on_step(done, total) reports progress. Clips offer n_frames, name and
+    per-frame qpos/qvel (`motions.Clip`); make_env(num_envs, max_episode_steps) builds the batched env (default: the
+    humanoid's, with the expert's action mapping; `fbcpr.envs.EnvBundle.make_eval_env` fits)."""
 
     if method not in METHODS:
         raise DataError(f"method: must be one of {METHODS}, got {method!r}")
@@ -200,7 +202,12 @@ def collect(bfm: Any, library: Any, method: str = "bc", rollouts: int = 10, nois
     t_all = np.arange(horizon + 1)
     z = np.stack([track[c][np.minimum(f + t_all, len(track[c]) - 1)] for c, f in zip(clip_idx, frame_idx)])
     starts = [library.clips[c] for c in clip_idx]
-    env = VectorHumanoidEnv(len(clip_idx), max_episode_steps=horizon + 1, action_mapping=bfm.action_mapping)
+    if make_env is None:
+        from humanoid_env.vector import VectorHumanoidEnv
+
+        env = VectorHumanoidEnv(len(clip_idx), max_episode_steps=horizon + 1, action_mapping=bfm.action_mapping)
+    else:
+        env = make_env(len(clip_idx), horizon + 1)
     obs_log = np.empty((len(clip_idx), horizon + 1, bfm.obs_dim), np.float32)
     act_log = np.empty((len(clip_idx), horizon + 1, bfm.action_dim), np.float32)
     ends = steps.copy()
@@ -215,7 +222,8 @@ def collect(bfm: Any, library: Any, method: str = "bc", rollouts: int = 10, nois
             noisy = np.clip(mu + noise * rng.standard_normal(mu.shape), -1.0, 1.0) if method == "bc" else mu
             _, _, _, _, info = env.step(noisy.astype(np.float32))
             obs = info["final_obs"]
-            ends = np.where(info["diverged"] & (ends > t), t, ends)  # the state before divergence is the last
+            diverged = info.get("diverged", np.zeros(len(ends), bool))
+            ends = np.where(diverged & (ends > t), t, ends)  # the state before divergence is the last
             if on_step is not None:
                 on_step(t + 1, horizon)
     finally:
