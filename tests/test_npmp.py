@@ -284,3 +284,20 @@ def test_checkpoint_round_trip_and_corruption(tmp_path):
     (path / "model.safetensors").write_bytes(b"garbage")
     with pytest.raises(CheckpointError, match="checksum mismatch"):
         load_npmp(path)
+
+
+def test_collect_on_another_env_through_make_env():
+    from types import SimpleNamespace
+
+    from fbcpr.toy import pointmass as pm
+
+    torch.manual_seed(0)
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 2, "action_dim": 2}, "env": {"name": "toy"},
+                            "agent": {"seq_length": 4, "batch_size": 8}})
+    teacher = BFM(FBCPRModel(cfg.model), cfg)
+    path = pm.demo_paths(12)["circle-ccw"]
+    clip = SimpleNamespace(name="circle", obs=path, n_frames=12, qpos=path.astype(np.float64), qvel=np.zeros((12, 2)))
+    data = collect(teacher, SimpleNamespace(clips=[clip], names=["circle"]), "lfpc", max_steps=5,
+                   make_env=lambda n, steps: pm.PointMassVectorEnv(n, max_episode_steps=steps))
+    assert data.obs.shape == (6, 2) and data.jacobian.shape == (6, 2, 2)
+    np.testing.assert_allclose(data.obs[0].numpy(), path[0])  # the rollout starts at the clip's first frame
