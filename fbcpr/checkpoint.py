@@ -73,23 +73,24 @@ class Checkpoint:
         """(tensors, json metadata) of trainer_state.safetensors."""
         if not self.has(TRAINER_FILE):
             raise CheckpointError(f"{self.path}: no {TRAINER_FILE} (an inference-only checkpoint cannot be resumed)")
-        return _read_tensors(self.path, TRAINER_FILE, self.manifest)
+        return read_tensors(self.path, TRAINER_FILE, self.manifest)
 
     def reward_buffer(self) -> dict[str, np.ndarray] | None:
         """The reward-inference buffer (next_obs, qpos, qvel) as numpy arrays, or None if absent."""
         if not self.has(REWARD_FILE):
             return None
-        tensors, _ = _read_tensors(self.path, REWARD_FILE, self.manifest)
+        tensors, _ = read_tensors(self.path, REWARD_FILE, self.manifest)
         missing = [k for k in REWARD_KEYS if k not in tensors]
         if missing:
             raise CheckpointError(f"{self.path / REWARD_FILE}: missing tensors {missing}")
         return {k: tensors[k].float().numpy() for k in REWARD_KEYS}  # compact exports store float16
 
     def replay_buffer(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]] | None:
-        return _read_tensors(self.path, REPLAY_FILE, self.manifest) if self.has(REPLAY_FILE) else None
+        return read_tensors(self.path, REPLAY_FILE, self.manifest) if self.has(REPLAY_FILE) else None
 
 
-def _sha256(path: Path) -> str:
+def sha256(path: Path) -> str:
+    """Hex SHA-256 of a file, as the manifest records it (corruption shows up on load)."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -97,16 +98,18 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _write_tensors(path: Path, tensors: dict[str, torch.Tensor], meta: dict[str, Any] | None = None) -> None:
+def write_tensors(path: Path, tensors: dict[str, torch.Tensor], meta: dict[str, Any] | None = None) -> None:
+    """Tensors (moved to CPU) and JSON metadata into one safetensors file: no pickle anywhere."""
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
     save_file(tensors, str(path), metadata={_META_KEY: json.dumps(meta or {})})
     with open(path, "rb+") as f:
         os.fsync(f.fileno())
 
 
-def _read_tensors(root: Path, name: str, manifest: dict[str, Any]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+def read_tensors(root: Path, name: str, manifest: dict[str, Any]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """The tensors and JSON metadata of `root/name`, checked against the manifest first (CheckpointError)."""
     path = root / name
-    _verify(path, manifest)
+    verify(path, manifest)
     try:
         tensors = load_file(str(path))
         with safetensors.safe_open(str(path), framework="pt") as f:
@@ -128,13 +131,14 @@ def read_trainer_meta(path: str | Path) -> dict[str, Any]:
         raise CheckpointError(f"{file}: unreadable safetensors file ({e})") from None
 
 
-def _verify(path: Path, manifest: dict[str, Any]) -> None:
+def verify(path: Path, manifest: dict[str, Any]) -> None:
+    """CheckpointError unless `path` exists with the size and hash its manifest entry records."""
     entry = manifest.get("files", {}).get(path.name)
     if not path.is_file():
         raise CheckpointError(f"{path}: file missing from checkpoint")
     if entry is None:
         raise CheckpointError(f"{path}: not listed in {MANIFEST_FILE}")
-    if path.stat().st_size != entry["bytes"] or _sha256(path) != entry["sha256"]:
+    if path.stat().st_size != entry["bytes"] or sha256(path) != entry["sha256"]:
         raise CheckpointError(f"{path}: checksum mismatch with {MANIFEST_FILE} (file corrupted or truncated)")
 
 
@@ -159,7 +163,7 @@ def save_checkpoint(
         shapes: dict[str, dict[str, list[int]]] = {}
 
         def put(name: str, tensors: dict[str, torch.Tensor], meta: dict[str, Any] | None = None) -> None:
-            _write_tensors(tmp / name, tensors, meta)
+            write_tensors(tmp / name, tensors, meta)
             shapes[name] = {k: list(v.shape) for k, v in tensors.items()}
 
         put(MODEL_FILE, dict(model.state_dict()))
@@ -177,7 +181,7 @@ def save_checkpoint(
         cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}
         (tmp / CONFIG_FILE).write_text(yaml.safe_dump(cfg_data, sort_keys=False))
         for p in sorted(tmp.iterdir()):
-            files[p.name] = {"bytes": p.stat().st_size, "sha256": _sha256(p)}
+            files[p.name] = {"bytes": p.stat().st_size, "sha256": sha256(p)}
         manifest = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -190,8 +194,8 @@ def save_checkpoint(
             "tensors": shapes,
         }
         (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
-        _fsync_dir(tmp)
-        _swap_into_place(tmp, path)
+        fsync_dir(tmp)
+        swap_into_place(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -218,7 +222,8 @@ def remove_stale_temporaries(root: Path) -> list[Path]:
     return stale
 
 
-def _fsync_dir(path: Path) -> None:
+def fsync_dir(path: Path) -> None:
+    """Flush a folder's entries to disk, so a rename survives a power cut."""
     fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -230,7 +235,7 @@ def _backup_name(path: Path) -> Path:
     return path.parent / f".{path.name}.previous"
 
 
-def _swap_into_place(tmp: Path, path: Path) -> None:
+def swap_into_place(tmp: Path, path: Path) -> None:
     """tmp -> path; an existing checkpoint is kept as a backup until the new one is in place."""
     backup = _backup_name(path)
     if path.exists():
@@ -238,7 +243,7 @@ def _swap_into_place(tmp: Path, path: Path) -> None:
             shutil.rmtree(backup)
         os.rename(path, backup)
     os.rename(tmp, path)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
     shutil.rmtree(backup, ignore_errors=True)
 
 
@@ -298,7 +303,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
     if recorded not in METHODS:
         raise CheckpointError(f"{path}: holds a {recorded!r} model, not an agent of `fbcpr train` (an NPMP checkpoint "
                               "tracks clips: `fbcpr track`, `fbcpr eval --suite tracking`)")
-    _verify(path / CONFIG_FILE, manifest)
+    verify(path / CONFIG_FILE, manifest)
     try:
         data = yaml.safe_load((path / CONFIG_FILE).read_text())
         if isinstance(data, dict) and isinstance(data.get("env"), dict):
@@ -316,7 +321,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
         model = get_method(algorithm).model(mcfg)
     except ValueError as e:
         raise CheckpointError(f"{path / CONFIG_FILE}: {e}") from None
-    tensors, _ = _read_tensors(path, MODEL_FILE, manifest)
+    tensors, _ = read_tensors(path, MODEL_FILE, manifest)
     load_state_strict(model, tensors, str(path / MODEL_FILE))
     model.to(device)
     model.eval()

@@ -104,13 +104,13 @@ def test_crash_mid_save_keeps_previous_checkpoint(tmp_path, monkeypatch):
     cfg, old = make(seed=0)
     _, new = make(seed=1)
     save_checkpoint(tmp_path / "c", old, cfg)
-    real = ckpt_mod._write_tensors
+    real = ckpt_mod.write_tensors
 
     def crash(path, tensors, meta=None):
         real(path, tensors, meta)
         if path.name == "reward_buffer.safetensors":
             raise OSError("disk full (simulated)")
-    monkeypatch.setattr(ckpt_mod, "_write_tensors", crash)
+    monkeypatch.setattr(ckpt_mod, "write_tensors", crash)
     with pytest.raises(OSError, match="simulated"):
         save_checkpoint(tmp_path / "c", new, cfg, reward_buffer=reward_buffer())
     assert os.listdir(tmp_path) == ["c"]  # temp dir cleaned up

@@ -23,12 +23,12 @@ from fbcpr.checkpoint import (
     MODEL_FILE,
     TRAINER_FILE,
     CheckpointError,
-    _fsync_dir,
-    _read_tensors,
-    _sha256,
-    _swap_into_place,
-    _verify,
-    _write_tensors,
+    fsync_dir,
+    read_tensors,
+    sha256,
+    swap_into_place,
+    verify,
+    write_tensors,
     load_state_strict,
     read_manifest,
 )
@@ -52,7 +52,7 @@ class NPMPCheckpoint:
     def trainer_state(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         if TRAINER_FILE not in self.manifest.get("files", {}):
             raise CheckpointError(f"{self.path}: no {TRAINER_FILE} (cannot resume distillation from it)")
-        return _read_tensors(self.path, TRAINER_FILE, self.manifest)
+        return read_tensors(self.path, TRAINER_FILE, self.manifest)
 
 
 def is_npmp_checkpoint(path: str | Path) -> bool:
@@ -69,12 +69,12 @@ def save_npmp(path: str | Path, model: NPMPModel, info: dict[str, Any],
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
     try:
-        _write_tensors(tmp / MODEL_FILE, dict(model.state_dict()))
+        write_tensors(tmp / MODEL_FILE, dict(model.state_dict()))
         if trainer_state is not None:
-            _write_tensors(tmp / TRAINER_FILE, *trainer_state)
+            write_tensors(tmp / TRAINER_FILE, *trainer_state)
         record = {**info, "config": config_to_dict(model.cfg), "obs_dim": model.obs_dim, "action_dim": model.action_dim}
         (tmp / INFO_FILE).write_text(json.dumps(record, indent=1))
-        files = {p.name: {"bytes": p.stat().st_size, "sha256": _sha256(p)} for p in sorted(tmp.iterdir())}
+        files = {p.name: {"bytes": p.stat().st_size, "sha256": sha256(p)} for p in sorted(tmp.iterdir())}
         manifest = {"format": FORMAT, "format_version": FORMAT_VERSION, "algorithm": ALGORITHM,
                     "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                     "versions": {"fbcpr": fbcpr.__version__, "torch": torch.__version__, "numpy": np.__version__,
@@ -82,8 +82,8 @@ def save_npmp(path: str | Path, model: NPMPModel, info: dict[str, Any],
                     "model": {"obs_dim": model.obs_dim, "action_dim": model.action_dim, "z_dim": model.z_dim},
                     "files": files}
         (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
-        _fsync_dir(tmp)
-        _swap_into_place(tmp, path)
+        fsync_dir(tmp)
+        swap_into_place(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -96,7 +96,7 @@ def load_npmp(path: str | Path, device: str | torch.device = "cpu") -> NPMPCheck
     manifest = read_manifest(path / MANIFEST_FILE)
     if manifest.get("algorithm") != ALGORITHM:
         raise CheckpointError(f"{path}: holds a {manifest.get('algorithm', 'fb_cpr')!r} checkpoint, not an NPMP model")
-    _verify(path / INFO_FILE, manifest)
+    verify(path / INFO_FILE, manifest)
     try:
         info = json.loads((path / INFO_FILE).read_text())
         cfg = npmp_config(info["config"])
@@ -104,6 +104,6 @@ def load_npmp(path: str | Path, device: str | torch.device = "cpu") -> NPMPCheck
     except (json.JSONDecodeError, KeyError, TypeError, ValueError, ConfigError) as err:
         raise CheckpointError(f"{path / INFO_FILE}: invalid ({type(err).__name__}: {err})") from None
     model = NPMPModel(cfg, *dims)
-    tensors, _ = _read_tensors(path, MODEL_FILE, manifest)
+    tensors, _ = read_tensors(path, MODEL_FILE, manifest)
     load_state_strict(model, tensors, str(path / MODEL_FILE))
     return NPMPCheckpoint(path=path, model=model.to(device).eval(), info=info, manifest=manifest)
