@@ -8,7 +8,8 @@ not pretrain again. After that `fit` trains nothing: it only anneals, once per r
 the online transitions the agent passed to `observe` (Algorithm 1's annealing buffer A).
 
 Features: x = (s, s' - s), each half standardised by M's statistics (the representation AMPReward uses, for the
-same reason: a step moves a state by a small fraction of its spread, which noise on (s, s') would drown).
+same reason: a step moves a state by a small fraction of its spread, which noise on (s, s') would drown), with a
+floor on each std (`STD_FLOOR`).
 The energy is anchored so that M's mean energy is 0 (DSM learns e only up to a constant, and the annealing rule
 divides by energies). Reward: e(x, sigma_k) = e(x) / sigma_k, or with the transform tanh((e(x, sigma_k) - r') /
 scale), r' the mean online energy of the last k rollout phases at the current level.
@@ -30,6 +31,11 @@ from fbcpr.near.config import NEARConfig
 from fbcpr.near.energy import EnergyNet, dsm_loss, noise_levels
 from fbcpr.normalizer import RunningNormalizer
 from fbcpr.optim_state import load_optimizer_state, optimizer_state
+
+
+#: Each feature's std in M is at least this fraction of its half's median std: a single clip holds features that
+#: barely move, and standardising by their ~0 spread would blow any deviation of the agent up by orders of magnitude.
+STD_FLOOR = 0.1
 
 
 class NEARError(ValueError):
@@ -89,6 +95,7 @@ class NEARReward:
         for norm, x in ((self.normalizer, s), (self.step_normalizer, s_next - s)):
             norm.count.zero_()
             norm.update(x)
+            norm.var.clamp_(min=float(norm.var.sqrt().median() * STD_FLOOR) ** 2)
         data = self.features(s, s_next)
         t0, losses = time.perf_counter(), []
         for _ in range(cfg.pretrain_steps):
