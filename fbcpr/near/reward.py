@@ -59,6 +59,7 @@ class NEARReward:
         self.generator.manual_seed(seed + 2)  # not the agent's stream, nor AMP's
         self.rng = np.random.default_rng(seed + 2)  # draws M from the library
         self.pretrained = False
+        self.pretrain_stats: dict[str, float] = {}  # DSM loss at the start and end of pretraining, its wall time
         self.anchor = 0.0
         self.history: deque[float] = deque(maxlen=cfg.transform_history)
         self._phase = torch.zeros(2, dtype=torch.float64, device=self.device)  # sum and count of A's energies
@@ -113,8 +114,9 @@ class NEARReward:
         self.pretrained = True
         curve = torch.stack(losses).tolist()
         k = max(1, len(curve) // 10)
-        return {"near/dsm_first": float(np.mean(curve[:k])), "near/dsm_last": float(np.mean(curve[-k:])),
-                "near/pretrain_s": time.perf_counter() - t0}
+        self.pretrain_stats = {"near/dsm_first": float(np.mean(curve[:k])), "near/dsm_last": float(np.mean(curve[-k:])),
+                               "near/pretrain_s": time.perf_counter() - t0}
+        return self.pretrain_stats
 
     # ------------------------------------------------------------------------------------- ImitationReward
     def observe(self, obs: Tensor, next_obs: Tensor) -> None:
@@ -125,8 +127,10 @@ class NEARReward:
 
     def fit(self, expert_windows: Tensor, batch: dict[str, Tensor]) -> dict[str, float]:
         """Pretrain on the first call; afterwards anneal once per rollout phase (when A holds transitions).
-        NEAR's energy learns nothing from the agent, so the windows and batch are not used."""
-        metrics = {} if self.pretrained else self.pretrain()
+        NEAR's energy learns nothing from the agent, so the windows and batch are not used. The metrics repeat
+        the pretraining figures, so every logged row has them."""
+        if not self.pretrained:
+            self.pretrain()
         total, count = self._phase.tolist()
         if count > 0:
             mean = total / count
@@ -134,7 +138,7 @@ class NEARReward:
             if self.cfg.anneal:
                 self._progress = self.annealer.step(mean / self.sigma)
             self._phase.zero_()
-        return {**metrics, "near/level": float(self.annealer.level), "near/sigma": self.sigma,
+        return {**self.pretrain_stats, "near/level": float(self.annealer.level), "near/sigma": self.sigma,
                 "near/progress": self._progress, "near/energy_online": self.history[-1] if self.history else 0.0}
 
     def reward(self, obs: Tensor, next_obs: Tensor, z: Tensor | None = None) -> Tensor:
@@ -153,6 +157,7 @@ class NEARReward:
         for name, module in self._modules().items():
             tensors.update({f"{name}.{k}": v for k, v in module.state_dict().items()})
         meta = {"optimizer": optimizer_state(self.optimizer, "optim", tensors), "pretrained": self.pretrained,
+                "pretrain_stats": self.pretrain_stats,
                 "anchor": self.anchor, "annealer": self.annealer.state(), "history": list(self.history),
                 "phase": self._phase.tolist(), "progress": self._progress, "rng": self.rng.bit_generator.state}
         tensors["generator"] = self.generator.get_state()
@@ -167,6 +172,7 @@ class NEARReward:
         load_optimizer_state(self.optimizer, "optim", meta["optimizer"], tensors)
         self.generator.set_state(tensors["generator"])
         self.pretrained, self.anchor, self._progress = bool(meta["pretrained"]), float(meta["anchor"]), meta["progress"]
+        self.pretrain_stats = dict(meta["pretrain_stats"])
         self.annealer.load_state(meta["annealer"])
         self.history = deque(meta["history"], maxlen=self.cfg.transform_history)
         self._phase = torch.tensor(meta["phase"], dtype=torch.float64, device=self.device)
