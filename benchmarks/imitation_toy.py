@@ -1,11 +1,13 @@
-"""Single-task and imitation evidence on the point mass: TD3 on one reward and AMP on one demonstration.
+"""Single-task and imitation evidence on the point mass: TD3 on one reward, AMP and NEAR on one demonstration.
 
-    python benchmarks/imitation_toy.py [--out runs/imitation-toy] [--seed 0]
+    python benchmarks/imitation_toy.py [--out runs/imitation-toy] [--seed 0] [--only td3,amp,near]
 
-Trains configs/td3-toy.yaml (TD3 on the reach-top-right reward) and configs/amp-toy.yaml (TD3 on the AMP reward
-of the circle-ccw demonstration), each in well under 3 CPU minutes, and evaluates them next to a uniform random
-policy: TD3 by its task's return (fbcpr.toy.evaluate.task_return), AMP by NEAR's average DTW position error to
-the demonstration (and SPARC, next to the demonstration's). The last lines are machine-readable, one per method:
+Trains configs/td3-toy.yaml (TD3 on the reach-top-right reward), configs/amp-toy.yaml (TD3 on the AMP reward of
+the circle-ccw demonstration) and configs/near-toy.yaml (TD3 on the NEAR energy of the same demonstration, same
+budget), each in well under 3 CPU minutes, and evaluates them next to a uniform random policy: TD3 by its task's
+return (fbcpr.toy.evaluate.task_return), AMP and NEAR by NEAR's average DTW position error to the demonstration
+(and SPARC, next to the demonstration's), with each run's wall and CPU seconds. The last lines are
+machine-readable, one per method:
     RESULT method=<name> task=<task> metric=<metric> value=<x> random=<y>
 """
 from __future__ import annotations
@@ -41,23 +43,29 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=str(ROOT / "runs" / "imitation-toy"))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--only", default="td3,amp,near", help="comma-separated subset of td3, amp, near")
     args = ap.parse_args()
     out = Path(args.out)
+    only = set(args.only.split(","))
     results = []
 
-    td3, cost = train("td3-toy.yaml", out / "td3", args.seed)
-    task = td3.cfg.agent.reward.task
-    value = task_return(td3.agent.model.eval(), task, np.random.default_rng(EVAL_SEED), prompt=False)
-    random = task_return(None, task, np.random.default_rng(EVAL_SEED), prompt=False)
-    results.append({"method": "td3", "task": task, "metric": "return", "value": value, "random": random, **cost})
+    if "td3" in only:
+        td3, cost = train("td3-toy.yaml", out / "td3", args.seed)
+        task = td3.cfg.agent.reward.task
+        value = task_return(td3.agent.model.eval(), task, np.random.default_rng(EVAL_SEED), prompt=False)
+        random = task_return(None, task, np.random.default_rng(EVAL_SEED), prompt=False)
+        results.append({"method": "td3", "task": task, "metric": "return", "value": value, "random": random, **cost})
 
-    amp, cost = train("amp-toy.yaml", out / "amp", args.seed)
-    demo = amp.cfg.env.motions
-    learned = imitation_metrics(amp.agent.model.eval(), demo, np.random.default_rng(EVAL_SEED))
-    floor = imitation_metrics(None, demo, np.random.default_rng(EVAL_SEED))
-    results.append({"method": "amp", "task": demo, "metric": "dtw", "value": learned["dtw"], "random": floor["dtw"],
-                    "sparc": learned["sparc"], "sparc_random": floor["sparc"], "sparc_expert": learned["sparc_expert"],
-                    **cost})
+    for method in ("amp", "near"):
+        if method not in only:
+            continue
+        run, cost = train(f"{method}-toy.yaml", out / method, args.seed)
+        demo = run.cfg.env.motions
+        learned = imitation_metrics(run.agent.model.eval(), demo, np.random.default_rng(EVAL_SEED))
+        floor = imitation_metrics(None, demo, np.random.default_rng(EVAL_SEED))
+        results.append({"method": method, "task": demo, "metric": "dtw", "value": learned["dtw"],
+                        "random": floor["dtw"], "sparc": learned["sparc"], "sparc_random": floor["sparc"],
+                        "sparc_expert": learned["sparc_expert"], **cost})
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(results, indent=1))

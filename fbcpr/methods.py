@@ -58,7 +58,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 )}
 
 #: Imitation rewards (`fbcpr.protocols.ImitationReward`) an RL agent can be trained on, by `reward.imitation` name.
-IMITATION_REWARDS: dict[str, str] = {"amp": "fbcpr.amp.reward:AMPReward"}
+IMITATION_REWARDS: dict[str, str] = {"amp": "fbcpr.amp.reward:AMPReward", "near": "fbcpr.near.reward:NEARReward"}
 
 
 def get_method(name: str) -> Method:
@@ -68,10 +68,12 @@ def get_method(name: str) -> Method:
     return METHODS[name]
 
 
-def imitation_reward(name: str, obs_dim: int, agent_cfg: Any, device: torch.device, seed: int) -> ImitationReward:
-    """A fresh imitation reward `name`, sized by the agent config's section of that name (`agent.amp`, ...);
-    ConfigError naming `agent.reward.imitation` for an unknown name."""
+def imitation_reward(name: str, obs_dim: int, agent_cfg: Any, device: torch.device, seed: int,
+                     library: Any = None) -> ImitationReward:
+    """A fresh imitation reward `name`, sized by the agent config's section of that name (`agent.amp`, ...), with
+    the env's demonstration library (what NEAR pretrains on); ConfigError naming `agent.reward.imitation` for an
+    unknown name."""
     if name not in IMITATION_REWARDS:
         raise ConfigError(f"agent.reward.imitation: unknown imitation reward {name!r}; choose from "
                           f"{sorted(IMITATION_REWARDS)}")
-    return _load(IMITATION_REWARDS[name])(obs_dim, getattr(agent_cfg, name), device, seed)
+    return _load(IMITATION_REWARDS[name])(obs_dim, getattr(agent_cfg, name), device, seed, library=library)

@@ -33,7 +33,9 @@ def window_transitions(windows: Tensor) -> tuple[Tensor, Tensor]:
 class AMPReward:
     """D(s, s') with its normaliser, Adam optimiser and random stream."""
 
-    def __init__(self, obs_dim: int, cfg: AMPConfig, device: str | torch.device = "cpu", seed: int = 0) -> None:
+    def __init__(self, obs_dim: int, cfg: AMPConfig, device: str | torch.device = "cpu", seed: int = 0,
+                 library: Any = None) -> None:
+        """`library` is not kept: AMP learns online from the expert windows each `fit` receives."""
         self.cfg, self.device = cfg, torch.device(device)
         self.normalizer = RunningNormalizer(obs_dim).to(self.device)
         self.step_normalizer = RunningNormalizer(obs_dim).to(self.device)

@@ -53,7 +53,7 @@ class TD3Agent:
         rc = cfg.agent.reward
         rc.validate("agent.reward")
         task = bundle.task_reward(rc.task) if rc.task else None
-        imitation = (imitation_reward(rc.imitation, bundle.obs_dim, cfg.agent, device, seed)
+        imitation = (imitation_reward(rc.imitation, bundle.obs_dim, cfg.agent, device, seed, bundle.library)
                      if rc.imitation else None)
         return cls(cfg.model, cfg.agent, device, seed, task_reward=task, imitation=imitation)
 
@@ -66,6 +66,13 @@ class TD3Agent:
         """Exploration actions: the deterministic policy plus clipped Gaussian noise."""
         with torch.no_grad():
             return self.model.actor_sample(self.model.normalize(obs.to(self.device)), self.generator)
+
+    def observe(self, obs: Tensor, next_obs: Tensor) -> None:
+        """Online transitions as they are collected, for an imitation reward that tracks the agent's progress
+        (NEAR's annealing); the replay batches `update` gets are too old for that."""
+        watch = getattr(self.imitation, "observe", None)
+        if watch is not None:
+            watch(obs.to(self.device), next_obs.to(self.device))
 
     # ------------------------------------------------------------------------------------- reward
     def reward(self, batch: dict[str, Tensor]) -> Tensor:
