@@ -146,7 +146,7 @@ def test_td3_on_near_runs_end_to_end_on_the_toy_and_resumes_without_pretraining(
     near = tr.agent.imitation
     assert near.pretrained and len(near.history) == 4 and "near/level" in out     # phases at 250..400
     assert all(k in out for k in ("reward", "critic_loss")) and torch.isfinite(torch.tensor(out["reward"]))
-    cfg.train.total_env_steps = 450
+    cfg.train.total_env_steps = 550                                                # refills 128+ transitions
     resumed = Trainer(cfg, tmp_path, resume=True, progress=False)
     assert resumed.agent.imitation.pretrained
     torch.testing.assert_close(resumed.agent.imitation.ema.net[0].weight, near.ema.net[0].weight, rtol=0, atol=0)
