@@ -9,6 +9,9 @@
 
 `ImitationReward` is a reward learned from demonstrations that plugs into any RL agent: `fit` on expert
 transitions (and, for adversarial rewards, the agent's own), then a batched `reward(obs, next_obs[, z])`.
+A sequence reward (VIRL) also has an int attribute `history` > 0: the agent then samples each transition with the
+`history` states of its episode before s (`ReplayBuffer.sample(history=)`, batch["history"]) and passes them as
+`reward(obs, next_obs, history=...)`.
 """
 from __future__ import annotations
 

@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 
 from fbcpr.amp.config import AMPConfig
 from fbcpr.config import NON_NEGATIVE, POSITIVE, ConfigError, _check, _f
+from fbcpr.virl.config import VIRLConfig
 
 
 @dataclass
@@ -39,3 +40,4 @@ class TD3Config:
     bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
     reward: RewardConfig = field(default_factory=RewardConfig)
     amp: AMPConfig = field(default_factory=AMPConfig)
+    virl: VIRLConfig = field(default_factory=VIRLConfig)
