@@ -1,11 +1,13 @@
-"""Single-task and imitation evidence on the point mass: TD3 on one reward and AMP on one demonstration.
+"""Single-task and imitation evidence on the point mass: TD3 on one reward; AMP and VIRL on one demonstration.
 
-    python benchmarks/imitation_toy.py [--out runs/imitation-toy] [--seed 0]
+    python benchmarks/imitation_toy.py [--out runs/imitation-toy] [--seed 0] [--only td3,amp,virl-state,virl-video]
 
 Trains configs/td3-toy.yaml (TD3 on the reach-top-right reward) and configs/amp-toy.yaml (TD3 on the AMP reward
 of the circle-ccw demonstration), each in well under 3 CPU minutes, and evaluates them next to a uniform random
 policy: TD3 by its task's return (fbcpr.toy.evaluate.task_return), AMP by NEAR's average DTW position error to
-the demonstration (and SPARC, next to the demonstration's). The last lines are machine-readable, one per method:
+the demonstration (and SPARC, next to the demonstration's). configs/virl-toy.yaml and virl-toy-video.yaml train
+TD3 on VIRL's comparator reward (states, and the toy rendered as 32x32 frames) at AMP's budget and are scored
+the same way, plus the share of the demo's shape reproduced (`shape_coverage`). The last lines are machine-readable, one per method:
     RESULT method=<name> task=<task> metric=<metric> value=<x> random=<y>
 """
 from __future__ import annotations
@@ -24,6 +26,7 @@ from fbcpr.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 EVAL_SEED = 123
+IMITATION = {"amp": "amp-toy.yaml", "virl-state": "virl-toy.yaml", "virl-video": "virl-toy-video.yaml"}
 
 
 def train(config: str, out: Path, seed: int) -> tuple[Trainer, dict[str, float]]:
@@ -41,26 +44,31 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=str(ROOT / "runs" / "imitation-toy"))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--only", default="td3," + ",".join(IMITATION), help="comma-separated methods to run")
     args = ap.parse_args()
     out = Path(args.out)
+    only = args.only.split(",")
     results = []
 
-    td3, cost = train("td3-toy.yaml", out / "td3", args.seed)
-    task = td3.cfg.agent.reward.task
-    value = task_return(td3.agent.model.eval(), task, np.random.default_rng(EVAL_SEED), prompt=False)
-    random = task_return(None, task, np.random.default_rng(EVAL_SEED), prompt=False)
-    results.append({"method": "td3", "task": task, "metric": "return", "value": value, "random": random, **cost})
+    if "td3" in only:
+        td3, cost = train("td3-toy.yaml", out / "td3", args.seed)
+        task = td3.cfg.agent.reward.task
+        value = task_return(td3.agent.model.eval(), task, np.random.default_rng(EVAL_SEED), prompt=False)
+        random = task_return(None, task, np.random.default_rng(EVAL_SEED), prompt=False)
+        results.append({"method": "td3", "task": task, "metric": "return", "value": value, "random": random, **cost})
 
-    amp, cost = train("amp-toy.yaml", out / "amp", args.seed)
-    demo = amp.cfg.env.motions
-    learned = imitation_metrics(amp.agent.model.eval(), demo, np.random.default_rng(EVAL_SEED))
-    floor = imitation_metrics(None, demo, np.random.default_rng(EVAL_SEED))
-    results.append({"method": "amp", "task": demo, "metric": "dtw", "value": learned["dtw"], "random": floor["dtw"],
-                    "sparc": learned["sparc"], "sparc_random": floor["sparc"], "sparc_expert": learned["sparc_expert"],
-                    **cost})
+    for method in (m for m in IMITATION if m in only):
+        run, cost = train(IMITATION[method], out / method, args.seed)
+        demo = run.cfg.env.motions
+        learned = imitation_metrics(run.agent.model.eval(), demo, np.random.default_rng(EVAL_SEED))
+        floor = imitation_metrics(None, demo, np.random.default_rng(EVAL_SEED))
+        results.append({"method": method, "task": demo, "metric": "dtw", "value": learned["dtw"],
+                        "random": floor["dtw"], "shape": learned["shape_coverage"],
+                        "shape_random": floor["shape_coverage"], "sparc": learned["sparc"],
+                        "sparc_random": floor["sparc"], "sparc_expert": learned["sparc_expert"], **cost})
 
     out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(results, indent=1))
+    (out / f"results-seed{args.seed}.json").write_text(json.dumps(results, indent=1))
     for r in results:
         extra = {k: round(v, 3) for k, v in r.items() if k not in ("method", "task", "metric", "value", "random")}
         print(f"{r['method']}: {json.dumps(extra)}")
