@@ -26,7 +26,7 @@ class VIRLConfig:
     frame_ae_weight: float = _f(0.1, NON_NEGATIVE)       # λ4: frame autoencoder
     seq_reward_weight: float = _f(1.0, NON_NEGATIVE)     # distance = seq * ||h_e - h_a|| + frame * ||e_e - e_a||
     frame_reward_weight: float = _f(1.0, NON_NEGATIVE)
-    reward_width: float = _f(5.0, POSITIVE)              # reward = exp(-width * distance^2) (App. 7.7, W_d = -5)
+    reward_width: float = _f(1.0, POSITIVE)              # reward = exp(-width * distance^2) (App. 7.7 uses 5)
     bank_size: int = _f(256, POSITIVE)                   # demonstration windows the reward aligns against
     multitask: str | None = _f(None)                     # other clips for the comparator only (names / a folder)
     demo_frames: str | None = _f(None)                   # video demo: a folder of frames instead of the env's demo

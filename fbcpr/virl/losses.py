@@ -1,7 +1,9 @@
 """VIRL's training signal (paper Eq. 3-4, App. 7.9): labelled pairs of sequences and the losses on them.
 
 Positive pairs (y = 1): a demonstration window and a noisy copy of it, the window with a frame duplicated, two
-windows of the demonstration, two windows of the agent, two windows of the same other clip (multi-task data).
+windows of the demonstration, two windows of the same other clip (multi-task data). Not two windows of the agent
+(the paper's adversarial positives): with one demonstration they pulled every agent window to one point, away from
+the demo, and the reward went flat (the same for every behaviour of the agent; on the toy, DTW no better than random).
 Negative pairs (y = 0): the window and its reversal, a time-shuffle, one of its frames held for the whole window,
 the window and an agent rollout window, the window and another clip's, and windows of two different other clips.
 Frame-level pairs only where time step t of both sides should (not) match: the noisy copy (positive), agent and
@@ -69,7 +71,6 @@ def make_pairs(expert: Tensor, agent: Tensor, others: Tensor | None, other_ids: 
     add(E + ar, aug + ar, 1.0, 1.0)                                    # noisy copy
     add(E + ar, aug + n + ar, 1.0, -1.0)                               # a frame duplicated
     add(E + ar, E + roll, 1.0, -1.0)                                   # two demonstration windows
-    add(A + ar, A + roll, 1.0, -1.0)                                   # two agent windows
     add(E + ar, aug + 2 * n + ar, 0.0, -1.0)                           # reversed
     add(E + ar, aug + 3 * n + ar, 0.0, -1.0)                           # shuffled
     add(E + ar, aug + 4 * n + ar, 0.0, -1.0)                           # one frame held
