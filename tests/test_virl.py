@@ -78,15 +78,20 @@ def test_reward_prefers_the_demo_to_shuffled_and_still_rollouts_batched_and_fini
 
 
 def test_encoders_give_the_documented_shapes_and_frames_their_range(tmp_path):
-    state = Comparator(358, VIRLConfig(**SMALL))
-    e, h = state.encode(torch.randn(3, 5, 358))
-    assert e.shape == (3, 5, 16) and h.shape == (3, 16)
-    assert state.decode_sequence(h, 5).shape == (3, 5, 358)
-    video = Comparator(2, VIRLConfig(input="video", image_size=64, **SMALL))
-    frames = rasterize_points(torch.as_tensor(pm.demo_paths()["circle-ccw"][:5])[None], 64)
+    state = VIRLReward(358, VIRLConfig(**SMALL))
+    x = state._inputs(torch.randn(3, 5, 358))                                               # states and their steps
+    e, h = state.model.encode(x)
+    assert x.shape == (3, 5, 716) and e.shape == (3, 5, 16) and h.shape == (3, 16)
+    assert state.model.decode_sequence(h, 5).shape == (3, 5, 716)
+    assert Comparator(358, VIRLConfig(motion=False, **SMALL)).encode(torch.randn(3, 5, 358))[1].shape == (3, 16)
+    video = VIRLReward(2, VIRLConfig(input="video", image_size=64, **SMALL))
+    path = torch.as_tensor(pm.demo_paths()["circle-ccw"][:5])[None]
+    frames = rasterize_points(path, 64)
     assert frames.shape == (1, 5, 64, 64) and frames.min() >= 0 and frames.max() <= 1 and frames.max() > 0.9
-    e, h = video.encode(frames)
-    assert e.shape == (1, 5, 16) and video.decode_frames(e).shape == (1, 5, 64, 64)
+    x = video._inputs(path)                                                                 # frame + difference
+    assert x.shape == (1, 5, 2, 64, 64) and torch.equal(x[:, :, 0], frames) and not x[0, 0, 1].any()
+    e, h = video.model.encode(x)
+    assert e.shape == (1, 5, 16) and video.model.decode_frames(e).shape == (1, 5, 2, 64, 64)
     back = load_frames(save_frames(frames[0].numpy(), tmp_path / "demo"), 32)             # a folder of PNGs
     assert back.shape == (5, 32, 32) and back.dtype == np.float32 and 0 <= back.min() and back.max() <= 1
     with pytest.raises(ValueError, match="not a folder"):
@@ -142,8 +147,9 @@ def test_multitask_pairs_label_clips_and_leave_out_the_demo():
     virl = VIRLReward(2, VIRLConfig(seq_length=L, multitask="synthetic", **SMALL), seed=0)
     others, ids = virl._other_windows(32, demo_windows()[0, 0])
     assert len(virl.others) == 4 and others.shape == (32, L, 2)                           # circle-ccw left out
-    pairs = make_pairs(others[:8], others[8:16], others, ids, 0.05, torch.Generator().manual_seed(0))
-    loss, parts = virl_loss(Comparator(2, VIRLConfig(seq_length=L, **SMALL)), pairs, 1.0, (0.7, 0.1, 0.1, 0.1))
+    x = virl._inputs(others)
+    pairs = make_pairs(x[:8], x[8:16], x, ids, 0.05, torch.Generator().manual_seed(0))
+    loss, parts = virl_loss(virl.model, pairs, 1.0, (0.7, 0.1, 0.1, 0.1))
     assert torch.isfinite(loss) and set(pairs.label.tolist()) == {0.0, 1.0}
 
 

@@ -14,6 +14,7 @@ class VIRLConfig:
 
     input: str = _f("state", _check(lambda v: v in INPUTS, f"must be one of {INPUTS}"))
     seq_length: int = _f(8, _check(lambda v: 2 <= v <= 64, "must be in [2, 64]"))  # frames per compared sequence
+    motion: bool = _f(True)                              # each frame also carries its change from the previous one
     embed_dim: int = _f(64, POSITIVE)
     hidden_dim: int = _f(128, POSITIVE)                  # frame MLP width and GRU width
     image_size: int = _f(64, _check(lambda v: v >= 8 and v % 4 == 0, "must be a multiple of 4, >= 8"))

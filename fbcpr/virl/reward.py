@@ -71,13 +71,14 @@ class VIRLReward:
             torch.manual_seed(seed + 2)
             self.model = Comparator(obs_dim, cfg).to(self.device)
         self.normalizer = RunningNormalizer(obs_dim).to(self.device)
+        self.step_normalizer = RunningNormalizer(obs_dim).to(self.device)  # of s_t - s_{t-1} (cfg.motion)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(seed + 2)  # not the agent's stream, nor AMP's
         self.frames: Tensor | None = None     # a video demonstration's windows (input: video with demo_frames)
         if cfg.demo_frames is not None:
             clip = torch.as_tensor(load_frames(cfg.demo_frames, cfg.image_size), device=self.device)
-            self.frames = windows_of(clip, cfg.seq_length)
+            self.frames = self._with_motion(windows_of(clip, cfg.seq_length))
         width = (cfg.seq_length, obs_dim)
         self.bank = torch.zeros(cfg.bank_size, *width, device=self.device)  # raw demonstration windows (FIFO)
         self.bank_pos = self.bank_fill = 0
@@ -86,10 +87,21 @@ class VIRLReward:
 
     # ------------------------------------------------------------------------------------------- inputs
     def _inputs(self, raw: Tensor) -> Tensor:
-        """Comparator inputs of raw state sequences: normalised states, or rendered frames for video."""
+        """Comparator inputs of raw state sequences (N, L, obs_dim): normalised states, or rendered frames for
+        video, each with its normalised change from the previous step when cfg.motion (zero for the first)."""
         if self.cfg.input == "video":
-            return rasterize_points(raw[..., :2], self.cfg.image_size)
-        return self.normalizer(raw)
+            return self._with_motion(rasterize_points(raw[..., :2], self.cfg.image_size))
+        x = self.normalizer(raw)
+        if not self.cfg.motion:
+            return x
+        return torch.cat([x, self.step_normalizer(torch.diff(raw, dim=1, prepend=raw[:, :1]))], -1)
+
+    def _with_motion(self, frames: Tensor) -> Tensor:
+        """Grey frames (N, L, S, S) as channels (N, L, C, S, S): the frame, and with cfg.motion its difference
+        from the previous frame (a small step of a dot is invisible to a conv net in one frame)."""
+        if not self.cfg.motion:
+            return frames[:, :, None]
+        return torch.stack([frames, torch.diff(frames, dim=1, prepend=frames[:, :1])], 2)
 
     def _agent_sequences(self, obs: Tensor, next_obs: Tensor, history: Tensor | None) -> Tensor:
         """history + s' (the last seq_length states), or (s, s') when no history is given."""
@@ -139,6 +151,7 @@ class VIRLReward:
         if self.cfg.input == "state":
             states = [agent, raw_demo] + ([others] if others is not None else [])
             self.normalizer.update(torch.cat([s.reshape(-1, self.obs_dim) for s in states]))
+            self.step_normalizer.update(torch.cat([torch.diff(s, dim=1).reshape(-1, self.obs_dim) for s in states]))
         demo = raw_demo if self.frames is not None else self._inputs(raw_demo)
         pairs = make_pairs(demo, self._inputs(agent), None if others is None else self._inputs(others), ids,
                            self.cfg.noise, self.generator)
@@ -172,6 +185,7 @@ class VIRLReward:
     def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:
         tensors = {f"model.{k}": v for k, v in self.model.state_dict().items()}
         tensors.update({f"normalizer.{k}": v for k, v in self.normalizer.state_dict().items()})
+        tensors.update({f"step_normalizer.{k}": v for k, v in self.step_normalizer.state_dict().items()})
         tensors["bank"] = self.bank.clone()
         meta = {"optimizer": optimizer_state(self.optimizer, "optim", tensors), "bank_pos": self.bank_pos,
                 "bank_fill": self.bank_fill}
@@ -181,7 +195,8 @@ class VIRLReward:
     def load_state(self, tensors: dict[str, Tensor], meta: dict[str, Any]) -> None:
         from fbcpr.checkpoint import CheckpointError, load_state_strict
 
-        for name, module in (("model", self.model), ("normalizer", self.normalizer)):
+        for name, module in (("model", self.model), ("normalizer", self.normalizer),
+                             ("step_normalizer", self.step_normalizer)):
             part = {k[len(name) + 1:]: v for k, v in tensors.items() if k.startswith(f"{name}.")}
             load_state_strict(module, part, f"trainer_state.safetensors (VIRL {name})")
         if tensors["bank"].shape != self.bank.shape:
