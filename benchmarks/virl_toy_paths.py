@@ -31,7 +31,7 @@ def main() -> None:
     ap.add_argument("--runs", default=str(ROOT / "runs" / "imitation-toy"))
     ap.add_argument("--out", default=str(ROOT / "docs" / "img" / "virl_toy_paths.png"))
     args = ap.parse_args()
-    fig, axes = plt.subplots(1, len(METHODS), figsize=(3.2 * len(METHODS), 3.4))
+    fig, axes = plt.subplots(1, len(METHODS), figsize=(3.2 * len(METHODS), 3.8))
     for ax, method in zip(axes, METHODS):
         model, demo = None, "circle-ccw"
         if method != "random":
@@ -46,7 +46,7 @@ def main() -> None:
         ax.set_title(f"{method}\nDTW {scores['dtw']:.3f}, shape {scores['shape_coverage']:.0%}", fontsize=9)
         ax.set_xlim(-1, 1), ax.set_ylim(-1, 1), ax.set_aspect("equal"), ax.set_xticks([]), ax.set_yticks([])
     axes[0].legend(loc="lower left", fontsize=7)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110)
     print(f"wrote {args.out}")
