@@ -1,6 +1,7 @@
 """Single-task and imitation evidence on the point mass: TD3 on one reward; AMP and VIRL on one demonstration.
 
     python benchmarks/imitation_toy.py [--out runs/imitation-toy] [--seed 0] [--only td3,amp,virl-state,virl-video]
+                                       [--set agent.virl.multitask=null ...]   (ablations: config overrides)
 
 Trains configs/td3-toy.yaml (TD3 on the reach-top-right reward) and configs/amp-toy.yaml (TD3 on the AMP reward
 of the circle-ccw demonstration), each in well under 3 CPU minutes, and evaluates them next to a uniform random
@@ -20,7 +21,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fbcpr.config import load_config
+import yaml
+
+from fbcpr.config import Config, config_from_dict
 from fbcpr.toy.evaluate import imitation_metrics, task_return
 from fbcpr.trainer import Trainer
 
@@ -29,9 +32,22 @@ EVAL_SEED = 123
 IMITATION = {"amp": "amp-toy.yaml", "virl-state": "virl-toy.yaml", "virl-video": "virl-toy-video.yaml"}
 
 
-def train(config: str, out: Path, seed: int) -> tuple[Trainer, dict[str, float]]:
+def load(config: str, overrides: tuple[str, ...]) -> Config:
+    """A shipped toy config with `dotted.key=value` overrides (YAML values), validated like any config."""
+    data = yaml.safe_load((ROOT / "configs" / config).read_text())
+    for item in overrides:
+        key, _, value = item.partition("=")
+        *path, last = key.split(".")
+        node = data
+        for name in path:
+            node = node.setdefault(name, {})
+        node[last] = yaml.safe_load(value)
+    return config_from_dict(data)
+
+
+def train(config: str, out: Path, seed: int, overrides: tuple[str, ...] = ()) -> tuple[Trainer, dict[str, float]]:
     """Train one config to its end; returns the trainer and its wall / CPU seconds."""
-    cfg = load_config(ROOT / "configs" / config)
+    cfg = load(config, overrides)
     cfg.train.seed = seed
     torch.set_num_threads(cfg.train.torch_threads or 1)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -45,6 +61,7 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "runs" / "imitation-toy"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--only", default="td3," + ",".join(IMITATION), help="comma-separated methods to run")
+    ap.add_argument("--set", action="append", default=[], help="config override for the imitation runs, key=value")
     args = ap.parse_args()
     out = Path(args.out)
     only = args.only.split(",")
@@ -58,7 +75,7 @@ def main() -> None:
         results.append({"method": "td3", "task": task, "metric": "return", "value": value, "random": random, **cost})
 
     for method in (m for m in IMITATION if m in only):
-        run, cost = train(IMITATION[method], out / method, args.seed)
+        run, cost = train(IMITATION[method], out / method, args.seed, tuple(args.set))
         demo = run.cfg.env.motions
         learned = imitation_metrics(run.agent.model.eval(), demo, np.random.default_rng(EVAL_SEED))
         floor = imitation_metrics(None, demo, np.random.default_rng(EVAL_SEED))
