@@ -1,13 +1,15 @@
-"""Single-task and imitation evidence on the point mass: TD3 on one reward, AMP and NEAR on one demonstration.
+"""Single-task and imitation evidence on the point mass: TD3 on one reward; AMP, NEAR and VIRL on one demonstration.
 
-    python benchmarks/imitation_toy.py [--out runs/imitation-toy] [--seed 0] [--only td3,amp,near]
+    python benchmarks/imitation_toy.py [--out runs/imitation-toy] [--seed 0] [--only td3,amp,near,virl-state,virl-video]
+                                       [--set agent.virl.multitask=null ...]   (ablations: config overrides)
 
-Trains configs/td3-toy.yaml (TD3 on the reach-top-right reward), configs/amp-toy.yaml (TD3 on the AMP reward of
-the circle-ccw demonstration) and configs/near-toy.yaml (TD3 on the NEAR energy of the same demonstration, same
-budget), each in well under 3 CPU minutes, and evaluates them next to a uniform random policy: TD3 by its task's
-return (fbcpr.toy.evaluate.task_return), AMP and NEAR by NEAR's average DTW position error to the demonstration
-(and SPARC, next to the demonstration's), with each run's wall and CPU seconds. The last lines are
-machine-readable, one per method:
+Trains configs/td3-toy.yaml (TD3 on the reach-top-right reward) and configs/amp-toy.yaml (TD3 on the AMP reward
+of the circle-ccw demonstration), each in well under 3 CPU minutes, and evaluates them next to a uniform random
+policy: TD3 by its task's return (fbcpr.toy.evaluate.task_return), AMP by NEAR's average DTW position error to
+the demonstration (and SPARC, next to the demonstration's). configs/near-toy.yaml trains TD3 on the NEAR energy
+of the same demonstration at the same budget, scored the same way. configs/virl-toy.yaml and virl-toy-video.yaml train
+TD3 on VIRL's comparator reward (states, and the toy rendered as 32x32 frames) at AMP's budget and are scored
+the same way, plus the share of the demo's shape reproduced (`shape_coverage`). The last lines are machine-readable, one per method:
     RESULT method=<name> task=<task> metric=<metric> value=<x> random=<y>
 """
 from __future__ import annotations
@@ -20,17 +22,34 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fbcpr.config import load_config
+import yaml
+
+from fbcpr.config import Config, config_from_dict
 from fbcpr.toy.evaluate import imitation_metrics, task_return
 from fbcpr.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 EVAL_SEED = 123
+IMITATION = {"amp": "amp-toy.yaml", "near": "near-toy.yaml", "virl-state": "virl-toy.yaml",
+             "virl-video": "virl-toy-video.yaml"}
 
 
-def train(config: str, out: Path, seed: int) -> tuple[Trainer, dict[str, float]]:
+def load(config: str, overrides: tuple[str, ...]) -> Config:
+    """A shipped toy config with `dotted.key=value` overrides (YAML values), validated like any config."""
+    data = yaml.safe_load((ROOT / "configs" / config).read_text())
+    for item in overrides:
+        key, _, value = item.partition("=")
+        *path, last = key.split(".")
+        node = data
+        for name in path:
+            node = node.setdefault(name, {})
+        node[last] = yaml.safe_load(value)
+    return config_from_dict(data)
+
+
+def train(config: str, out: Path, seed: int, overrides: tuple[str, ...] = ()) -> tuple[Trainer, dict[str, float]]:
     """Train one config to its end; returns the trainer and its wall / CPU seconds."""
-    cfg = load_config(ROOT / "configs" / config)
+    cfg = load(config, overrides)
     cfg.train.seed = seed
     torch.set_num_threads(cfg.train.torch_threads or 1)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -43,10 +62,11 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=str(ROOT / "runs" / "imitation-toy"))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--only", default="td3,amp,near", help="comma-separated subset of td3, amp, near")
+    ap.add_argument("--only", default="td3," + ",".join(IMITATION), help="comma-separated methods to run")
+    ap.add_argument("--set", action="append", default=[], help="config override for the imitation runs, key=value")
     args = ap.parse_args()
     out = Path(args.out)
-    only = set(args.only.split(","))
+    only = args.only.split(",")
     results = []
 
     if "td3" in only:
@@ -56,19 +76,18 @@ def main() -> None:
         random = task_return(None, task, np.random.default_rng(EVAL_SEED), prompt=False)
         results.append({"method": "td3", "task": task, "metric": "return", "value": value, "random": random, **cost})
 
-    for method in ("amp", "near"):
-        if method not in only:
-            continue
-        run, cost = train(f"{method}-toy.yaml", out / method, args.seed)
+    for method in (m for m in IMITATION if m in only):
+        run, cost = train(IMITATION[method], out / method, args.seed, tuple(args.set))
         demo = run.cfg.env.motions
         learned = imitation_metrics(run.agent.model.eval(), demo, np.random.default_rng(EVAL_SEED))
         floor = imitation_metrics(None, demo, np.random.default_rng(EVAL_SEED))
         results.append({"method": method, "task": demo, "metric": "dtw", "value": learned["dtw"],
-                        "random": floor["dtw"], "sparc": learned["sparc"], "sparc_random": floor["sparc"],
-                        "sparc_expert": learned["sparc_expert"], **cost})
+                        "random": floor["dtw"], "shape": learned["shape_coverage"],
+                        "shape_random": floor["shape_coverage"], "sparc": learned["sparc"],
+                        "sparc_random": floor["sparc"], "sparc_expert": learned["sparc_expert"], **cost})
 
     out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(results, indent=1))
+    (out / f"results-seed{args.seed}.json").write_text(json.dumps(results, indent=1))
     for r in results:
         extra = {k: round(v, 3) for k, v in r.items() if k not in ("method", "task", "metric", "value", "random")}
         print(f"{r['method']}: {json.dumps(extra)}")

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import typer
 
-from fbcpr.cli import (common, demo_cmd, env_cmd, eval_cmd, export_cmd, motions_cmd, npmp_cmd, prompt_cmd, tasks_cmd,
-                       train_cmd)
+from fbcpr.cli import (common, demo_cmd, env_cmd, eval_cmd, export_cmd, imitate_cmd, motions_cmd, npmp_cmd, prompt_cmd,
+                       tasks_cmd, train_cmd)
 
 app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid.", no_args_is_help=True,
                   cls=common.HelpGroup)
@@ -13,6 +13,7 @@ app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid
 # `fbcpr --help` lists commands in this order: the main ones first.
 common.register(app)
 train_cmd.register(app)
+imitate_cmd.register(app)
 prompt_cmd.register(app)
 eval_cmd.register(app)
 demo_cmd.register(app)

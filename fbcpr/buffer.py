@@ -3,6 +3,10 @@
 qpos/qvel are those of the next state s', the state a reward is evaluated on, so a subsample of
 (next_obs, qpos, qvel) is exactly what reward prompts need (`reward_inference_sample`).
 Large buffers (the paper's 5M transitions of the humanoid are ~15 GB) live in memory-mapped files.
+
+The trainer adds one transition per env per step, so an env's previous transition sits `stride` (= num_envs)
+rows back; `sample(..., history=H)` walks back that way to give each transition the states of its episode before
+it (a sequence reward's input, VIRL's), without storing sequences.
 """
 from __future__ import annotations
 
@@ -23,11 +27,12 @@ def transition_specs(obs_dim: int, action_dim: int, z_dim: int, nq: int, nv: int
 class ReplayBuffer:
     """Fixed-capacity FIFO of transitions, stored as float32 arrays (memmapped when `memmap_dir` is given)."""
 
-    def __init__(self, capacity: int, specs: dict[str, tuple[int, ...]], memmap_dir: str | Path | None = None) -> None:
+    def __init__(self, capacity: int, specs: dict[str, tuple[int, ...]], memmap_dir: str | Path | None = None,
+                 stride: int = 1) -> None:
         missing = [f for f in FIELDS if f not in specs]
         if missing:
             raise ValueError(f"ReplayBuffer specs: missing fields {missing}")
-        self.capacity, self.specs = capacity, dict(specs)
+        self.capacity, self.specs, self.stride = capacity, dict(specs), stride
         self.size, self.pos = 0, 0
         self.dropped = 0  # transitions refused by `add` for NaN or inf values
         self.memmap_dir = Path(memmap_dir) if memmap_dir is not None else None
@@ -72,12 +77,34 @@ class ReplayBuffer:
         self.pos = int((self.pos + k) % self.capacity)
         self.size = int(min(self.size + k, self.capacity))
 
-    def sample(self, rng: np.random.Generator, n: int, fields: tuple[str, ...] = FIELDS) -> dict[str, torch.Tensor]:
-        """n transitions uniformly with replacement, as float32 tensors."""
+    def sample(self, rng: np.random.Generator, n: int, fields: tuple[str, ...] = FIELDS,
+               history: int = 0) -> dict[str, torch.Tensor]:
+        """n transitions uniformly with replacement, as float32 tensors; with history=H > 0 also "history",
+        (n, H, obs_dim): the episode's states s_{t-H+1}..s_t ending at each obs, the earliest one repeated where
+        the episode (or the buffer) began less than H steps before."""
         if self.size == 0:
             raise RuntimeError("ReplayBuffer.sample: the buffer is empty")
         idx = np.sort(rng.integers(0, self.size, size=n))  # sorted: sequential reads on memmaps
-        return {k: torch.from_numpy(np.ascontiguousarray(self.data[k][idx])) for k in fields}
+        out = {k: torch.from_numpy(np.ascontiguousarray(self.data[k][idx])) for k in fields}
+        if history > 0:
+            out["history"] = torch.from_numpy(self._history(idx, history))
+        return out
+
+    def _history(self, idx: np.ndarray, length: int) -> np.ndarray:
+        """States of the `length` steps ending at obs[idx], walking back `stride` rows while the previous row's
+        next_obs is this row's obs (the same env's episode: a reset breaks the equality)."""
+        obs, nxt = self.data["obs"], self.data["next_obs"]
+        seq = np.empty((len(idx), length, obs.shape[1]), dtype=np.float32)
+        seq[:, -1] = obs[idx]
+        cur, alive = idx.copy(), np.ones(len(idx), dtype=bool)
+        for j in range(length - 2, -1, -1):  # over time steps, batched over the sample
+            age = (cur - self.pos) % self.capacity if self.size == self.capacity else cur  # rows older than cur
+            prev = (cur - self.stride) % self.capacity
+            alive &= age >= self.stride
+            alive[alive] = (nxt[prev[alive]] == obs[cur[alive]]).all(axis=1)
+            cur = np.where(alive, prev, cur)
+            seq[:, j] = np.where(alive[:, None], obs[cur], seq[:, j + 1])
+        return seq
 
     def reward_inference_sample(self, max_n: int, rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
         """Up to max_n distinct transitions' (next_obs, qpos, qvel): the checkpoint's reward buffer."""

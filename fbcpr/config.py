@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import types
 import typing
@@ -267,8 +268,8 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 
 #: Config keys that hold a file or folder path, for the envs where they do ("synthetic" names the built-in clips,
-#: and the toy's env.motions names demonstrations, not paths).
-PATH_KEYS = (("env", "motions", "humanoid"),)
+#: and the toy's env.motions names demonstrations, not paths); env None: every env. Sections may be dotted.
+PATH_KEYS = (("env", "motions", "humanoid"), ("agent.virl", "multitask", "humanoid"), ("agent.virl", "demo_frames", None))
 
 
 def load_config(path: str | Path) -> Config:
@@ -293,9 +294,11 @@ def load_config(path: str | Path) -> Config:
         raise ConfigError(f"{path}: invalid YAML ({e})") from None
     cfg = config_from_dict(data or {})
     for section, key, env in PATH_KEYS:
-        part = getattr(cfg, section)
-        value = getattr(part, key)
-        if cfg.env.name == env and value != "synthetic" and not Path(value).expanduser().is_absolute():
+        part = functools.reduce(lambda obj, name: getattr(obj, name, None), section.split("."), cfg)
+        value = getattr(part, key, None)
+        if value is None or env not in (None, cfg.env.name):
+            continue
+        if value != "synthetic" and not Path(value).expanduser().is_absolute():
             setattr(part, key, str((path.parent / value).resolve()))
     return cfg
 

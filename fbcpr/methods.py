@@ -58,7 +58,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 )}
 
 #: Imitation rewards (`fbcpr.protocols.ImitationReward`) an RL agent can be trained on, by `reward.imitation` name.
-IMITATION_REWARDS: dict[str, str] = {"amp": "fbcpr.amp.reward:AMPReward", "near": "fbcpr.near.reward:NEARReward"}
+IMITATION_REWARDS: dict[str, str] = {"amp": "fbcpr.amp.reward:AMPReward", "near": "fbcpr.near.reward:NEARReward",
+                                     "virl": "fbcpr.virl.reward:VIRLReward"}
 
 
 def get_method(name: str) -> Method:

@@ -12,6 +12,9 @@
 transitions (and, for adversarial rewards, the agent's own), then a batched `reward(obs, next_obs[, z])`. It is
 built by `fbcpr.methods.imitation_reward` with the env's demonstration library, which a reward trained offline
 before RL (NEAR) pretrains on in its first `fit`.
+A sequence reward (VIRL) also has an int attribute `history` > 0: the agent then samples each transition with the
+`history` states of its episode before s (`ReplayBuffer.sample(history=)`, batch["history"]) and passes them as
+`reward(obs, next_obs, history=...)`.
 """
 from __future__ import annotations
 

@@ -131,7 +131,7 @@ class Trainer:
             remove_stale_temporaries(self.out / "checkpoints")
         specs = transition_specs(b.obs_dim, b.action_dim, self.agent.z_dim, b.nq, b.nv)
         mmap = self.out / ("buffer_mmap" if r.is_main else f"buffer_mmap_rank{r.rank}")
-        self.buffer = ReplayBuffer(tc.buffer_capacity, specs, mmap if self._memmap_buffer else None)
+        self.buffer = ReplayBuffer(tc.buffer_capacity, specs, mmap if self._memmap_buffer else None, stride=tc.num_envs)
 
         self.env_steps = self.updates = self.episodes = 0
         self.next_priority = tc.priority_every or math.inf
@@ -254,7 +254,8 @@ class Trainer:
 
     def _update(self) -> None:
         a = self.cfg.agent
-        batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields)
+        batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields,
+                                   history=getattr(self.agent, "history", 0))  # states before obs: sequence rewards
         windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, a.batch_size // a.seq_length, a.seq_length))
         with self.replicas.synchronized():
             self.last_metrics = self.agent.update(batch, windows)

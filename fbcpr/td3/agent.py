@@ -43,6 +43,8 @@ class TD3Agent:
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(seed)
         self.task_reward, self.imitation = task_reward, imitation
+        # states before s the trainer samples with each transition for a sequence reward (VIRL); 0: none
+        self.history: int = getattr(imitation, "history", 0)
         self.num_updates = 0
 
     @classmethod
@@ -82,7 +84,9 @@ class TD3Agent:
             r = self.task_reward(*(batch[k].cpu().numpy() for k in ("next_obs", "qpos", "qvel")))
             total = rc.task_weight * torch.as_tensor(np.asarray(r), dtype=torch.float32, device=self.device)
         if self.imitation is not None:
-            r = rc.imitation_weight * self.imitation.reward(batch["obs"].to(self.device), batch["next_obs"].to(self.device))
+            seq = {"history": batch["history"]} if self.history else {}
+            r = rc.imitation_weight * self.imitation.reward(batch["obs"].to(self.device), batch["next_obs"].to(self.device),
+                                                            **seq)
             total = r if total is None else total + r
         assert total is not None, "agent.reward was validated to name a source"
         return total

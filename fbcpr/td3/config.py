@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from fbcpr.amp.config import AMPConfig
 from fbcpr.config import NON_NEGATIVE, POSITIVE, ConfigError, _check, _f
 from fbcpr.near.config import NEARConfig
+from fbcpr.virl.config import VIRLConfig
 
 
 @dataclass
@@ -41,3 +42,4 @@ class TD3Config:
     reward: RewardConfig = field(default_factory=RewardConfig)
     amp: AMPConfig = field(default_factory=AMPConfig)
     near: NEARConfig = field(default_factory=NEARConfig)
+    virl: VIRLConfig = field(default_factory=VIRLConfig)

@@ -92,9 +92,9 @@ def imitation(model: Any, rng: np.random.Generator, seq_length: int = 8) -> dict
             **{f"track_error/{k}": float(v.mean()) for k, v in errs.items()}}
 
 
-def imitation_metrics(model: Any, demo: str, rng: np.random.Generator, fps: float = FPS) -> dict[str, float]:
-    """NEAR's imitation metrics for a policy that acts without a prompt (model=None: random), from the demo's first
-    state for its length: average DTW position error to the demo, and SPARC of the speed next to the demo's."""
+def demo_rollouts(model: Any, demo: str, rng: np.random.Generator) -> np.ndarray:
+    """(N_STARTS, T, 2) paths of a policy that acts without a prompt (model=None: random) from the demo's first
+    state, for the demo's length T."""
     ref = pm.demo_paths()[demo]
     env = pm.PointMassVectorEnv(N_STARTS, max_episode_steps=len(ref) + 1)
     obs, _ = env.reset(options={"qpos": np.repeat(ref[:1], N_STARTS, 0), "qvel": np.zeros((N_STARTS, pm.NV))})
@@ -102,10 +102,26 @@ def imitation_metrics(model: Any, demo: str, rng: np.random.Generator, fps: floa
     for _ in range(len(ref) - 1):
         obs, *_ = env.step(_act(model, obs, None, rng))
         traj.append(obs)
-    paths = np.stack(traj, 1)                                               # (N_STARTS, T, 2)
+    return np.stack(traj, 1)
+
+
+def shape_coverage(path: np.ndarray, ref: np.ndarray, radius: float = 0.1) -> float:
+    """Share of the demonstration's points (T, 2) that the path (T', 2) comes within `radius` of, in any order:
+    how much of the demo's shape is reproduced (a point standing still on the demo covers a few percent)."""
+    d = np.linalg.norm(ref[:, None, :2] - path[None, :, :2], axis=-1)
+    return float((d.min(1) <= radius).mean())
+
+
+def imitation_metrics(model: Any, demo: str, rng: np.random.Generator, fps: float = FPS) -> dict[str, float]:
+    """NEAR's imitation metrics for a policy that acts without a prompt (model=None: random), from the demo's first
+    state for its length: average DTW position error to the demo, SPARC of the speed next to the demo's, and the
+    share of the demo's shape reproduced."""
+    ref = pm.demo_paths()[demo]
+    paths = demo_rollouts(model, demo, rng)
     return {"dtw": float(np.mean([dtw_pose_error(p, ref) for p in paths])),
             "sparc": float(np.mean([sparc(speed_profile(p, fps), fps) for p in paths])),
-            "sparc_expert": sparc(speed_profile(ref, fps), fps)}
+            "sparc_expert": sparc(speed_profile(ref, fps), fps),
+            "shape_coverage": float(np.mean([shape_coverage(p, ref) for p in paths]))}
 
 
 def evaluate(model: Any, seed: int = 0, seq_length: int = 8) -> dict[str, float]:

@@ -1,0 +1,38 @@
+"""`fbcpr imitate`: a short toy run writes a checkpoint; bad DEMO / --reward give one-line errors."""
+from typer.testing import CliRunner
+
+from fbcpr.cli.app import app
+from fbcpr.cli.imitate_cmd import imitation_config
+from fbcpr.methods import IMITATION_REWARDS
+
+
+def run(*args):
+    return CliRunner().invoke(app, [str(a) for a in args], env={"COLUMNS": "200"})
+
+
+def test_imitate_a_toy_demo_writes_a_checkpoint(tmp_path):
+    res = run("imitate", "circle-ccw", "--reward", "virl", "--out", tmp_path / "r", "--steps", 300, "--no-progress")
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "r" / "checkpoints" / "latest").is_file() and "DTW to circle-ccw" in res.output
+    again = run("imitate", "circle-ccw", "--reward", "virl", "--out", tmp_path / "r", "--steps", 300)
+    assert again.exit_code == 1 and "already holds a run" in again.output
+
+
+def test_imitate_errors_name_the_bad_argument(tmp_path):
+    res = run("imitate", tmp_path / "missing.npz", "--reward", "virl", "--out", tmp_path / "r")
+    assert res.exit_code == 1 and "DEMO" in res.output and "does not exist" in res.output
+    res = run("imitate", "circle-ccw", "--reward", "nope", "--out", tmp_path / "r")
+    assert res.exit_code == 1 and "--reward" in res.output and "'nope'" in res.output
+    assert not (tmp_path / "r").exists()
+    (tmp_path / "frames").mkdir()
+    res = run("imitate", tmp_path / "frames", "--reward", "amp", "--out", tmp_path / "r")
+    assert res.exit_code == 1 and "folder of frames" in res.output
+
+
+def test_every_registered_reward_has_a_toy_config_and_frames_go_to_video(tmp_path):
+    for name in IMITATION_REWARDS:
+        cfg, kind = imitation_config("circle-ccw", name)
+        assert kind == "toy" and cfg.agent.reward.imitation == name and cfg.env.motions == "circle-ccw"
+    (tmp_path / "frames").mkdir()
+    cfg, kind = imitation_config(str(tmp_path / "frames"), "virl")
+    assert kind == "toy-video" and cfg.agent.virl.input == "video" and cfg.agent.virl.demo_frames == str(tmp_path / "frames")
