@@ -91,7 +91,7 @@ def test_fit_anneals_once_per_rollout_phase_on_observed_transitions_and_the_tanh
     near.observe(s, s_next)                                                        # the agent now moves like the demo
     assert near.fit(pairs, {})["near/level"] == 1
     e = near.anchored_energy(s, s_next) / near.sigma
-    recent = sum(near.history) / len(near.history) / near.sigma
+    recent = sum(near.phase_energies) / len(near.phase_energies) / near.sigma
     torch.testing.assert_close(near.reward(s, s_next), torch.tanh((e - recent) / 10.0))
     near.cfg.transform = False
     torch.testing.assert_close(near.reward(s, s_next), e)
@@ -144,7 +144,7 @@ def test_td3_on_near_runs_end_to_end_on_the_toy_and_resumes_without_pretraining(
     tr = Trainer(cfg, tmp_path, progress=False)
     out = tr.run()
     near = tr.agent.imitation
-    assert near.pretrained and len(near.history) == 4 and "near/level" in out     # phases at 250..400
+    assert near.pretrained and len(near.phase_energies) == 4 and "near/level" in out     # phases at 250..400
     assert all(k in out for k in ("reward", "critic_loss")) and torch.isfinite(torch.tensor(out["reward"]))
     cfg.train.total_env_steps = 400 + cfg.agent.batch_size + tc.rollout_steps   # the resumed buffer starts empty
     resumed = Trainer(cfg, tmp_path, resume=True, progress=False)

@@ -62,7 +62,7 @@ class NEARReward:
         self.pretrained = False
         self.pretrain_stats: dict[str, float] = {}  # DSM loss at the start and end of pretraining, its wall time
         self.anchor = 0.0
-        self.history: deque[float] = deque(maxlen=cfg.transform_history)
+        self.phase_energies: deque[float] = deque(maxlen=cfg.transform_history)
         self._phase = torch.zeros(2, dtype=torch.float64, device=self.device)  # sum and count of A's energies
         self._progress = 0.0
 
@@ -137,12 +137,13 @@ class NEARReward:
         total, count = phase.tolist()
         if count > 0:
             mean = total / count
-            self.history.append(mean)
+            self.phase_energies.append(mean)
             if self.cfg.anneal:
                 self._progress = self.annealer.step(mean / self.sigma)
             self._phase.zero_()
         return {**self.pretrain_stats, "near/level": float(self.annealer.level), "near/sigma": self.sigma,
-                "near/progress": self._progress, "near/energy_online": self.history[-1] if self.history else 0.0}
+                "near/progress": self._progress,
+                "near/energy_online": self.phase_energies[-1] if self.phase_energies else 0.0}
 
     def reward(self, obs: Tensor, next_obs: Tensor, z: Tensor | None = None) -> Tensor:
         """e(s, s', sigma_k), or its tanh transform, for raw transitions, (n,); z is not used."""
@@ -151,7 +152,7 @@ class NEARReward:
         r = self.anchored_energy(obs, next_obs) / self.sigma
         if not self.cfg.transform:
             return r
-        recent = float(np.mean(self.history)) / self.sigma if self.history else 0.0
+        recent = float(np.mean(self.phase_energies)) / self.sigma if self.phase_energies else 0.0
         return torch.tanh((r - recent) / self.cfg.transform_scale)
 
     # ------------------------------------------------------------------------------------- state
@@ -161,7 +162,7 @@ class NEARReward:
             tensors.update({f"{name}.{k}": v for k, v in module.state_dict().items()})
         meta = {"optimizer": optimizer_state(self.optimizer, "optim", tensors), "pretrained": self.pretrained,
                 "pretrain_stats": self.pretrain_stats,
-                "anchor": self.anchor, "annealer": self.annealer.state(), "history": list(self.history),
+                "anchor": self.anchor, "annealer": self.annealer.state(), "history": list(self.phase_energies),
                 "phase": self._phase.tolist(), "progress": self._progress, "rng": self.rng.bit_generator.state}
         tensors["generator"] = self.generator.get_state()
         return tensors, meta
@@ -177,7 +178,7 @@ class NEARReward:
         self.pretrained, self.anchor, self._progress = bool(meta["pretrained"]), float(meta["anchor"]), meta["progress"]
         self.pretrain_stats = dict(meta["pretrain_stats"])
         self.annealer.load_state(meta["annealer"])
-        self.history = deque(meta["history"], maxlen=self.cfg.transform_history)
+        self.phase_energies = deque(meta["history"], maxlen=self.cfg.transform_history)
         self._phase = torch.tensor(meta["phase"], dtype=torch.float64, device=self.device)
         self.rng.bit_generator.state = meta["rng"]
 
