@@ -142,6 +142,26 @@ def verify(path: Path, manifest: dict[str, Any]) -> None:
         raise CheckpointError(f"{path}: checksum mismatch with {MANIFEST_FILE} (file corrupted or truncated)")
 
 
+def seal(tmp: Path, path: Path, algorithm: str, model: dict[str, int], extra: dict[str, Any] | None = None) -> None:
+    """Hash every file written to the staging folder `tmp`, add the manifest (format, method, versions, model
+    sizes, `extra`), and swap it into place at `path`: every checkpoint kind is finished the same way."""
+    files = {p.name: {"bytes": p.stat().st_size, "sha256": sha256(p)} for p in sorted(tmp.iterdir())}
+    manifest = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "algorithm": algorithm,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "versions": {"fbcpr": fbcpr.__version__, "torch": torch.__version__, "numpy": np.__version__,
+                     "safetensors": getattr(safetensors, "__version__", "?")},
+        "model": model,
+        "files": files,
+        **(extra or {}),
+    }
+    (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
+    fsync_dir(tmp)
+    swap_into_place(tmp, path)
+
+
 def save_checkpoint(
     path: str | Path,
     model: torch.nn.Module,
@@ -159,7 +179,6 @@ def save_checkpoint(
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
     try:
-        files: dict[str, dict[str, Any]] = {}
         shapes: dict[str, dict[str, list[int]]] = {}
 
         def put(name: str, tensors: dict[str, torch.Tensor], meta: dict[str, Any] | None = None) -> None:
@@ -180,22 +199,9 @@ def save_checkpoint(
             put(REPLAY_FILE, *replay_buffer)
         cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}
         (tmp / CONFIG_FILE).write_text(yaml.safe_dump(cfg_data, sort_keys=False))
-        for p in sorted(tmp.iterdir()):
-            files[p.name] = {"bytes": p.stat().st_size, "sha256": sha256(p)}
-        manifest = {
-            "format": FORMAT,
-            "format_version": FORMAT_VERSION,
-            "algorithm": config.algorithm if isinstance(config, Config) else DEFAULT_ALGORITHM,
-            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "versions": {"fbcpr": fbcpr.__version__, "torch": torch.__version__, "numpy": np.__version__,
-                         "safetensors": getattr(safetensors, "__version__", "?")},
-            "model": {"obs_dim": model.cfg.obs_dim, "action_dim": model.cfg.action_dim, "z_dim": model.z_dim},
-            "files": files,
-            "tensors": shapes,
-        }
-        (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
-        fsync_dir(tmp)
-        swap_into_place(tmp, path)
+        seal(tmp, path, config.algorithm if isinstance(config, Config) else DEFAULT_ALGORITHM,
+             {"obs_dim": model.cfg.obs_dim, "action_dim": model.cfg.action_dim, "z_dim": model.z_dim},
+             {"tensors": shapes})
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

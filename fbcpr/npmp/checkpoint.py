@@ -5,32 +5,24 @@ from __future__ import annotations
 
 import json
 import shutil
-import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import safetensors
 import torch
 
-import fbcpr
 from fbcpr.checkpoint import (
-    FORMAT,
-    FORMAT_VERSION,
     MANIFEST_FILE,
     MODEL_FILE,
     TRAINER_FILE,
     CheckpointError,
-    fsync_dir,
-    read_tensors,
-    sha256,
-    swap_into_place,
-    verify,
-    write_tensors,
     load_state_strict,
     read_manifest,
+    read_tensors,
+    seal,
+    verify,
+    write_tensors,
 )
 from fbcpr.config import ConfigError, config_to_dict
 from fbcpr.npmp.config import npmp_config
@@ -74,16 +66,7 @@ def save_npmp(path: str | Path, model: NPMPModel, info: dict[str, Any],
             write_tensors(tmp / TRAINER_FILE, *trainer_state)
         record = {**info, "config": config_to_dict(model.cfg), "obs_dim": model.obs_dim, "action_dim": model.action_dim}
         (tmp / INFO_FILE).write_text(json.dumps(record, indent=1))
-        files = {p.name: {"bytes": p.stat().st_size, "sha256": sha256(p)} for p in sorted(tmp.iterdir())}
-        manifest = {"format": FORMAT, "format_version": FORMAT_VERSION, "algorithm": ALGORITHM,
-                    "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                    "versions": {"fbcpr": fbcpr.__version__, "torch": torch.__version__, "numpy": np.__version__,
-                                 "safetensors": getattr(safetensors, "__version__", "?")},
-                    "model": {"obs_dim": model.obs_dim, "action_dim": model.action_dim, "z_dim": model.z_dim},
-                    "files": files}
-        (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
-        fsync_dir(tmp)
-        swap_into_place(tmp, path)
+        seal(tmp, path, ALGORITHM, {"obs_dim": model.obs_dim, "action_dim": model.action_dim, "z_dim": model.z_dim})
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
