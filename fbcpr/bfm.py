@@ -162,7 +162,7 @@ class BFM:
         Returns the kind of `obs` (numpy or torch) with its batch convention; a single z is shared by a batch.
         z is projected onto the model's sqrt(z_dim) sphere first, where every prompt's z lies and the policy was
         trained, so a z of any nonzero norm is used by its direction. Actions are always finite: an obs so far
-        outside the training range that the policy would output NaN raises ValueError instead.
+        outside the training range that the policy would output NaN raises InputError (a ValueError) instead.
         """
         as_torch = isinstance(obs, torch.Tensor)
         o, zt = self._tensor(obs, "obs"), self._tensor(z, "z")
