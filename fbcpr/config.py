@@ -85,6 +85,7 @@ class AgentConfig:
     ortho_coef: float = _f(100.0, NON_NEGATIVE)
     fz_coef: float = _f(0.1, NON_NEGATIVE)
     actor_reg_coef: float = _f(0.01, NON_NEGATIVE)
+    action_penalty: float = _f(0.0, NON_NEGATIVE)  # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
     grad_penalty: float = _f(10.0, NON_NEGATIVE)
     fb_pessimism: float = _f(0.0, NON_NEGATIVE)
     fz_pessimism: float = _f(0.5, NON_NEGATIVE)

@@ -23,3 +23,13 @@ def pessimistic(values: Tensor, coef: float) -> Tensor:
 def td_loss(values: Tensor, reward: Tensor, target: Tensor, discount: Tensor) -> Tensor:
     """Sum over members of mean_i (v_k,i - r_i - discount_i * target_i)^2 (Algorithm 1 lines 25, 29). values: (m, n)."""
     return (values - (reward + discount * target)).square().mean(-1).sum()
+
+
+def action_penalty(action: Tensor, value_scale: Tensor, coef: float) -> Tensor:
+    """coef * stopgrad(value_scale) * mean(action^2): a pull of the policy toward action 0.
+
+    Not in the paper. Q grows toward the box edges where data is thin, and the actor turns bang-bang within a few
+    thousand updates; under the `rest` action mapping action 0 is the standing pose, so this pull is a prior
+    toward standing. Scaling by the value magnitude keeps `coef` meaningful as Q drifts.
+    """
+    return coef * value_scale.detach() * action.square().mean()

@@ -1,6 +1,7 @@
 """Each loss of Algorithm 1 against a value computed by hand on a tiny batch."""
 import math
 
+import pytest
 import torch
 
 from fbcpr.fb_cpr import losses
@@ -65,6 +66,18 @@ def test_actor_loss_by_hand():
     Q.requires_grad_(True)
     losses.actor_loss(Fz, Q, alpha=0.1, coef=0.0).backward()
     torch.testing.assert_close(Fz.grad, torch.full((2, 2), -0.25))
+
+
+def test_action_penalty_adds_scaled_mean_square_and_pulls_actions_to_zero():
+    Fz = T([[1.0, 3.0], [2.0, 1.0]])
+    Q = T([[1.0, 0.0], [3.0, 2.0]])
+    action = T([[0.5, -1.0], [0.0, 1.0]]).requires_grad_(True)
+    # mean |fz| = 1 and mean(a^2) = 2.25 / 4, so coef 2 adds 1.125 to the -1.05 of the test above
+    loss = losses.actor_loss(Fz, Q, alpha=0.1, coef=0.5, action=action, action_coef=2.0)
+    torch.testing.assert_close(loss, T(-1.05 + 1.125))
+    loss.backward()
+    torch.testing.assert_close(action.grad, 2.0 * 2.0 * action.detach() / 4)   # toward 0, proportional to a
+    assert losses.actor_loss(Fz, Q, 0.1, 0.5, action=action, action_coef=0.0).item() == pytest.approx(-1.05)
 
 
 def test_gradient_penalty_matches_finite_differences():

@@ -178,7 +178,7 @@ class FBCPRAgent:
         detached = lambda pre: tuple(t.detach() for t in pre)  # noqa: E731
         Fz_pi = (model.forward_map(obs_n, a_pi, z, detach_params=True, pre=detached(pre_F)) * z).sum(-1)
         Q_pi = model.critic(obs_n, a_pi, z, detach_params=True, pre=detached(pre_Q))[..., 0]
-        actor = losses.actor_loss(Fz_pi, Q_pi, cfg.actor_reg_coef, cfg.actor_pessimism)
+        actor = losses.actor_loss(Fz_pi, Q_pi, cfg.actor_reg_coef, cfg.actor_pessimism, a_pi, cfg.action_penalty)
 
         total = (disc + cfg.grad_penalty * gp + fb + cfg.fz_coef * fz + cfg.ortho_coef * ortho + critic + actor)
         return {

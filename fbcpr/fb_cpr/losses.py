@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from fbcpr.adversarial import discriminator_loss, gradient_penalty  # noqa: F401  (Algorithm 1 lines 15-16)
-from fbcpr.ensemble_td import pessimistic, td_loss  # noqa: F401  (lines 25, 29, 32)
+from fbcpr.ensemble_td import action_penalty, pessimistic, td_loss  # noqa: F401  (lines 25, 29, 32)
 
 
 def _off_diagonal_mean_sq(x: Tensor) -> Tensor:
@@ -50,9 +50,15 @@ def implicit_reward(B_next: Tensor, z: Tensor, ridge: float = 1e-6) -> Tensor:
         return (B_next * torch.cholesky_solve(z.T, chol).T).sum(-1)
 
 
-def actor_loss(Fz: Tensor, Q: Tensor, alpha: float, coef: float) -> Tensor:
-    """Line 32: -mean(Fz_pess + alpha * stopgrad(mean |Fz_pess|) * Q_pess). Fz, Q: (m, n) at policy actions."""
+def actor_loss(Fz: Tensor, Q: Tensor, alpha: float, coef: float, action: Tensor | None = None,
+               action_coef: float = 0.0) -> Tensor:
+    """Line 32: -mean(Fz_pess + alpha * stopgrad(mean |Fz_pess|) * Q_pess). Fz, Q: (m, n) at policy actions.
+
+    action_coef > 0 adds `action_penalty` on the policy's actions (n, a), scaled by the same mean |Fz_pess|."""
     fz = pessimistic(Fz, coef)
     q = pessimistic(Q, coef)
     scale = fz.abs().mean().detach()
-    return -(fz + alpha * scale * q).mean()
+    loss = -(fz + alpha * scale * q).mean()
+    if action is None or action_coef == 0.0:
+        return loss
+    return loss + action_penalty(action, scale, action_coef)

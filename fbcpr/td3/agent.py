@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from fbcpr.config import Config, ModelConfig
-from fbcpr.ensemble_td import pessimistic, td_loss
+from fbcpr.ensemble_td import action_penalty, pessimistic, td_loss
 from fbcpr.envs import TaskReward
 from fbcpr.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.precision import resolve_bf16
@@ -108,8 +108,9 @@ class TD3Agent:
                 target = pessimistic(q_next, cfg.critic_pessimism)
             q = model.q(obs_n, action)
             critic = td_loss(q, reward, target, discount)
-            q_pi = pessimistic(model.q(obs_n, model.actor_mean(obs_n), detach_params=True), cfg.actor_pessimism)
-            actor = -q_pi.mean()
+            a_pi = model.actor_mean(obs_n)
+            q_pi = pessimistic(model.q(obs_n, a_pi, detach_params=True), cfg.actor_pessimism)
+            actor = -q_pi.mean() + action_penalty(a_pi, q_pi.abs().mean(), cfg.action_penalty)
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
         (critic + actor).backward()

@@ -38,6 +38,7 @@ class TD3Config:
     tau: float = _f(0.005, _check(lambda v: 0.0 < v <= 1.0, "must be in (0, 1]"))
     critic_pessimism: float = _f(0.0, NON_NEGATIVE)
     actor_pessimism: float = _f(0.0, NON_NEGATIVE)
+    action_penalty: float = _f(0.0, NON_NEGATIVE)  # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
     bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
     reward: RewardConfig = field(default_factory=RewardConfig)
     amp: AMPConfig = field(default_factory=AMPConfig)
