@@ -64,7 +64,8 @@ WARNINGS: tuple[tuple[str, Callable[[dict[str, float]], bool], str], ...] = (
      "the discriminator separates expert from online states almost perfectly: the imitation reward is a constant "
      "penalty and the actor learns little from it (a signature of runs that end lying on the ground)"),
     ("bang-bang", lambda m: m.get("action_saturated", 0.0) > 0.5,
-     "over half of the policy's action components sit beyond 0.9: a bang-bang actor, which falls"),
+     "over half of the policy's action components sit beyond 0.9: a bang-bang actor, which falls "
+     "(agent.action_penalty pulls the policy toward action 0)"),
     ("non-finite", lambda m: m.get("buffer_dropped", 0) > 0,
      "transitions with NaN or inf values reached the replay buffer and were dropped (see buffer_dropped)"),
 )
