@@ -107,7 +107,7 @@ def plot(curves: dict[str, Any], task: str, path: Path) -> None:
         ax.axhline(c["random"]["return"], ls=":", color=ax.lines[-1].get_color(), lw=1)
     ax.set_xlabel("env steps")
     ax.set_ylabel(f"return ({task}, {HORIZON} steps)")
-    ax.set_title("TD3 in NPMP latent space vs raw actions (toy); dotted: random")
+    ax.set_title("TD3 in NPMP latent space vs raw actions (toy)\nmean, min-max band; dotted: random policy", fontsize=10)
     ax.legend()
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -124,13 +124,18 @@ def main() -> None:
     parser.add_argument("--eval-every", type=int, default=1000)
     parser.add_argument("--distill-steps", type=int, default=1500)
     parser.add_argument("--plot", type=Path, default=None, help="learning-curve PNG")
+    parser.add_argument("--scale", type=float, default=None, help="env.npmp_innovation_scale (default: the config's)")
+    parser.add_argument("--agents", nargs="+", default=["td3-raw", "td3-npmp"], choices=["td3-raw", "td3-npmp"])
     args = parser.parse_args()
     torch.set_num_threads(1)
     npmp = distil(args.teacher, args.out / "npmp", args.distill_steps, 0)
     base = load_config(find_config("td3-toy"))
     base = replace(base, agent=replace(base.agent, reward=replace(base.agent.reward, task=args.task)),
                    train=replace(base.train, total_env_steps=args.steps, eval_every=args.eval_every))
-    configs = {"td3-raw": base, "td3-npmp": replace(base, env=replace(base.env, npmp=str(npmp)))}
+    scale = base.env.npmp_innovation_scale if args.scale is None else args.scale
+    configs = {"td3-raw": base, "td3-npmp": replace(base, env=replace(base.env, npmp=str(npmp),
+                                                                       npmp_innovation_scale=scale))}
+    configs = {name: configs[name] for name in args.agents}
     curves: dict[str, Any] = {}
     for name, cfg in configs.items():
         curves[name] = {"random": random_reference(cfg, args.task), "seeds": {}, "seconds": {}}
