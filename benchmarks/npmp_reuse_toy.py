@@ -41,7 +41,7 @@ from npmp_toy import TOY_NPMP, ToyClip
 EPISODES, HORIZON = 10, 100
 
 
-def distil(teacher_path: str, out: Path, steps: int, seed: int) -> Path:
+def distil(teacher_path: str, out: Path, steps: int, seed: int, alpha: float) -> Path:
     """An LFPC NPMP of the teacher on every toy demonstration, saved at `out` (kept if already there)."""
     if is_npmp_checkpoint(out):
         print(f"reusing the NPMP at {out}")
@@ -53,7 +53,7 @@ def distil(teacher_path: str, out: Path, steps: int, seed: int) -> Path:
     data = collect(teacher, library, "lfpc", rollouts=1, noise=0.1, perturb_scale=0.1, seed=seed,
                    make_env=lambda n, k: pm.PointMassVectorEnv(n, max_episode_steps=k))
     torch.manual_seed(seed)
-    model = NPMPModel(npmp_config({**TOY_NPMP, "seed": seed}, preset="paper"), pm.OBS_DIM, pm.ACTION_DIM)
+    model = NPMPModel(npmp_config({**TOY_NPMP, "seed": seed, "alpha": alpha}, preset="paper"), pm.OBS_DIM, pm.ACTION_DIM)
     model.obs_normalizer.update(data.obs)
     distiller = Distiller(model, data)
     for _ in range(steps):
@@ -123,12 +123,13 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=10_000, help="env steps per TD3 run")
     parser.add_argument("--eval-every", type=int, default=1000)
     parser.add_argument("--distill-steps", type=int, default=1500)
+    parser.add_argument("--alpha", type=float, default=0.95, help="the distilled NPMP's AR(1) prior (0: i.i.d.)")
     parser.add_argument("--plot", type=Path, default=None, help="learning-curve PNG")
     parser.add_argument("--scale", type=float, default=None, help="env.npmp_innovation_scale (default: the config's)")
     parser.add_argument("--agents", nargs="+", default=["td3-raw", "td3-npmp"], choices=["td3-raw", "td3-npmp"])
     args = parser.parse_args()
     torch.set_num_threads(1)
-    npmp = distil(args.teacher, args.out / "npmp", args.distill_steps, 0)
+    npmp = distil(args.teacher, args.out / "npmp", args.distill_steps, 0, args.alpha)
     base = load_config(find_config("td3-toy"))
     base = replace(base, agent=replace(base.agent, reward=replace(base.agent.reward, task=args.task)),
                    train=replace(base.train, total_env_steps=args.steps, eval_every=args.eval_every))
