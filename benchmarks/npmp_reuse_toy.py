@@ -53,7 +53,8 @@ def distil(teacher_path: str, out: Path, steps: int, seed: int, alpha: float) ->
     data = collect(teacher, library, "lfpc", rollouts=1, noise=0.1, perturb_scale=0.1, seed=seed,
                    make_env=lambda n, k: pm.PointMassVectorEnv(n, max_episode_steps=k))
     torch.manual_seed(seed)
-    model = NPMPModel(npmp_config({**TOY_NPMP, "seed": seed, "alpha": alpha}, preset="paper"), pm.OBS_DIM, pm.ACTION_DIM)
+    cfg = npmp_config({**TOY_NPMP, "seed": seed, "alpha": alpha}, preset="paper")
+    model = NPMPModel(cfg, pm.OBS_DIM, pm.ACTION_DIM)
     model.obs_normalizer.update(data.obs)
     distiller = Distiller(model, data)
     for _ in range(steps):
@@ -107,7 +108,8 @@ def plot(curves: dict[str, Any], task: str, path: Path) -> None:
         ax.axhline(c["random"]["return"], ls=":", color=ax.lines[-1].get_color(), lw=1)
     ax.set_xlabel("env steps")
     ax.set_ylabel(f"return ({task}, {HORIZON} steps)")
-    ax.set_title("TD3 in NPMP latent space vs raw actions (toy)\nmean, min-max band; dotted: random policy", fontsize=10)
+    ax.set_title("TD3 in NPMP latent space vs raw actions (toy)\nmean, min-max band; dotted: random policy",
+                 fontsize=10)
     ax.legend()
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
