@@ -128,12 +128,15 @@ def main() -> None:
     parser.add_argument("--alpha", type=float, default=0.95, help="the distilled NPMP's AR(1) prior (0: i.i.d.)")
     parser.add_argument("--plot", type=Path, default=None, help="learning-curve PNG")
     parser.add_argument("--scale", type=float, default=None, help="env.npmp_innovation_scale (default: the config's)")
+    parser.add_argument("--action-penalty", type=float, default=0.0,
+                        help="agent.action_penalty; in z-space a pull toward the prior, as ||eps||^2 is its KL")
     parser.add_argument("--agents", nargs="+", default=["td3-raw", "td3-npmp"], choices=["td3-raw", "td3-npmp"])
     args = parser.parse_args()
     torch.set_num_threads(1)
     npmp = distil(args.teacher, args.out / "npmp", args.distill_steps, 0, args.alpha)
     base = load_config(find_config("td3-toy"))
-    base = replace(base, agent=replace(base.agent, reward=replace(base.agent.reward, task=args.task)),
+    base = replace(base, agent=replace(base.agent, reward=replace(base.agent.reward, task=args.task),
+                                       action_penalty=args.action_penalty),
                    train=replace(base.train, total_env_steps=args.steps, eval_every=args.eval_every))
     scale = base.env.npmp_innovation_scale if args.scale is None else args.scale
     configs = {"td3-raw": base, "td3-npmp": replace(base, env=replace(base.env, npmp=str(npmp),
