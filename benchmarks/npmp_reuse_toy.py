@@ -93,6 +93,18 @@ def random_reference(cfg: Any, task: str) -> dict[str, float]:
                        task, EPISODES, HORIZON, seed=1000)
 
 
+def plot_panel(ax: Any, curves: dict[str, Any], task: str) -> None:
+    """Return vs env steps per agent: the mean over seeds, a min-max band, and the random policy dotted."""
+    for name, c in curves.items():
+        r = np.array([[row["return"] for row in seed_curve] for seed_curve in c["seeds"].values()])
+        ax.plot(c["steps"], r.mean(0), label=f"{name} ({len(r)} seeds)")
+        ax.fill_between(c["steps"], r.min(0), r.max(0), alpha=0.2)
+        ax.axhline(c["random"]["return"], ls=":", color=ax.lines[-1].get_color(), lw=1)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel(f"return ({task}, {HORIZON} steps)")
+    ax.legend()
+
+
 def plot(curves: dict[str, Any], task: str, path: Path) -> None:
     import matplotlib
 
@@ -100,17 +112,9 @@ def plot(curves: dict[str, Any], task: str, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 3.6))
-    for name, c in curves.items():
-        r = np.array([[row["return"] for row in seed_curve] for seed_curve in c["seeds"].values()])
-        mean = r.mean(0)
-        ax.plot(c["steps"], mean, label=f"{name} ({len(r)} seeds)")
-        ax.fill_between(c["steps"], r.min(0), r.max(0), alpha=0.2)
-        ax.axhline(c["random"]["return"], ls=":", color=ax.lines[-1].get_color(), lw=1)
-    ax.set_xlabel("env steps")
-    ax.set_ylabel(f"return ({task}, {HORIZON} steps)")
+    plot_panel(ax, curves, task)
     ax.set_title("TD3 in NPMP latent space vs raw actions (toy)\nmean, min-max band; dotted: random policy",
                  fontsize=10)
-    ax.legend()
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
