@@ -12,7 +12,7 @@ from fbcpr.envs import make_env
 from fbcpr.npmp.checkpoint import save_npmp
 from fbcpr.npmp.config import npmp_config
 from fbcpr.npmp.model import NPMPModel
-from fbcpr.npmp.reuse import LatentActionEnv, task_return
+from fbcpr.npmp.reuse import LatentActionEnv, load_decoder, task_return
 from fbcpr.toy import pointmass as pm
 from fbcpr.trainer import Trainer
 
@@ -98,6 +98,14 @@ def test_bad_checkpoints_are_config_errors(tmp_path, npmp_dir):
     wide = save_npmp(tmp_path / "wide", toy_npmp(obs_dim=3), {"method": "bc"})
     with pytest.raises(ConfigError, match="env.npmp.*obs_dim 3.*toy env has 2"):
         make_env(EnvConfig(name="toy", npmp=str(wide)), 2, 0)
+
+
+def test_action_mapping_must_match(tmp_path):
+    path = save_npmp(tmp_path / "mid", toy_npmp(), {"method": "bc", "action_mapping": "mid"})
+    toy = make_env(EnvConfig(name="toy"), 1, 0)  # toy-sized dims; the mapping check is the humanoid's
+    with pytest.raises(ConfigError, match="env.npmp.*'mid'.*env.action_mapping is 'rest'"):
+        load_decoder(str(path), toy, EnvConfig(name="humanoid", action_mapping="rest"))
+    assert load_decoder(str(path), toy, EnvConfig(name="humanoid", action_mapping="mid")).z_dim == 4
 
 
 def test_config_rules(tmp_path, npmp_dir):
