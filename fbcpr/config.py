@@ -113,6 +113,10 @@ class EnvConfig:
     fall_prob: float = _f(0.2, PROB)
     max_episode_steps: int = _f(300, _range(1, 10**7))
     action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
+    # reuse (fbcpr.npmp.reuse): an NPMP checkpoint whose frozen decoder turns actions in its latent space into the
+    # env's actions; the agent then acts with the AR(1) prior's innovation eps = npmp_innovation_scale * a
+    npmp: str | None = _f(None)
+    npmp_innovation_scale: float = _f(math.sqrt(3.0), POSITIVE)  # sqrt(3): uniform actions have unit variance
 
 
 @dataclass
@@ -245,6 +249,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if cfg.agent.batch_size % cfg.agent.seq_length:
         raise ConfigError(f"agent.batch_size: must be a multiple of agent.seq_length ({cfg.agent.seq_length}), "
                           f"got {cfg.agent.batch_size}")
+    if cfg.env.npmp is not None and (cfg.algorithm != "td3" or cfg.agent.reward.imitation):
+        raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
+                          "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")
     return cfg
 
 
@@ -270,7 +277,8 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 #: Config keys that hold a file or folder path, for the envs where they do ("synthetic" names the built-in clips,
 #: and the toy's env.motions names demonstrations, not paths); env None: every env. Sections may be dotted.
-PATH_KEYS = (("env", "motions", "humanoid"), ("agent.virl", "multitask", "humanoid"), ("agent.virl", "demo_frames", None))
+PATH_KEYS = (("env", "motions", "humanoid"), ("env", "npmp", None), ("agent.virl", "multitask", "humanoid"),
+             ("agent.virl", "demo_frames", None))
 
 
 def load_config(path: str | Path) -> Config:

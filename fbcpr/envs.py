@@ -44,10 +44,14 @@ class EnvBundle:
 
 def make_env(cfg: EnvConfig, num_envs: int, seed: int, threads: int | None = None) -> EnvBundle:
     """Build the configured environment (`humanoid` or `toy`) with `num_envs` parallel copies, stepped on `threads`
-    threads (None: all cores; data-parallel ranks on one machine share them)."""
-    if cfg.name == "toy":
-        return _toy(cfg, num_envs)
-    return _humanoid(cfg, num_envs, threads)
+    threads (None: all cores; data-parallel ranks on one machine share them). With `env.npmp`, the agent acts in
+    that NPMP's latent space (`fbcpr.npmp.reuse`)."""
+    bundle = _toy(cfg, num_envs) if cfg.name == "toy" else _humanoid(cfg, num_envs, threads)
+    if cfg.npmp is None:
+        return bundle
+    from fbcpr.npmp.reuse import latent_bundle  # lazy: torch-heavy NPMP code only for runs that use it
+
+    return latent_bundle(bundle, cfg)
 
 
 def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
