@@ -6,7 +6,8 @@ docs/results.md section 1 (goal success and proximity, reward returns, imitation
 
 Both runs use configs/toy.yaml unchanged (same networks, rates, nu mixture, update ratio, buffer); the NEAR runs
 switch `agent.regulariser` to near with the toy sizes of its `agent.near:` section below (NEAR_TOY: those of
-configs/near-toy.yaml where they apply). Runs go one at a time; results.json is rewritten after each.
+configs/near-toy.yaml where they apply). Runs go one at a time; results.json is rewritten after each, and a later call with
+more --seeds adds to it.
 """
 from __future__ import annotations
 
@@ -60,10 +61,17 @@ def main() -> None:
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    saved = out / "results.json"
     results = {"random": evaluate(None, seed=123), "runs": {r: [] for r in args.regularisers},
                "near_toy": NEAR_TOY, "steps": args.steps}
+    if saved.is_file():  # more seeds into the same table: runs already there (same budget) are kept, not redone
+        results = json.loads(saved.read_text())
+        if results["steps"] != args.steps or results["near_toy"] != NEAR_TOY:
+            raise SystemExit(f"{saved}: measured with another budget or NEAR section; pick another --out")
     for seed in args.seeds:  # seed-major: an interrupted benchmark still holds both regularisers
         for reg in args.regularisers:
+            if any(r["seed"] == seed for r in results["runs"].setdefault(reg, [])):
+                continue
             cfg = config(reg, seed, args.steps, args.eval_every)
             results["runs"][reg].append(run_seed(seed, None, out / f"{reg}-seed{seed}", cfg))
             (out / "results.json").write_text(json.dumps(results, indent=1))
