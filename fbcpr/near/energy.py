@@ -47,7 +47,7 @@ def dsm_loss(energy: EnergyNet, x: Tensor, sigmas: Tensor, generator: torch.Gene
     sigma = sigmas.to(x.device)[idx][:, None]
     eps = torch.randn(x.shape, generator=generator, device=x.device)
     noisy = (x + sigma * eps).requires_grad_(True)
-    e = energy(noisy, cond) / sigma[:, 0]
+    e = (energy(noisy) if cond is None else energy(noisy, cond)) / sigma[:, 0]
     score, = torch.autograd.grad(e.sum(), noisy, create_graph=True)
     return 0.5 * (sigma * score + eps).square().sum(-1).mean()
 
