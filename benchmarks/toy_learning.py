@@ -15,16 +15,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fbcpr.config import load_config
+from fbcpr.config import Config, load_config
 from fbcpr.toy.evaluate import evaluate
 from fbcpr.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_seed(seed: int, steps: int | None, out: Path) -> dict:
-    """Train configs/toy.yaml with one seed, evaluating every eval_every env steps; the history of one run."""
-    cfg = load_config(ROOT / "configs" / "toy.yaml")
+def run_seed(seed: int, steps: int | None, out: Path, cfg: Config | None = None) -> dict:
+    """Train `cfg` (default configs/toy.yaml) with one seed, evaluating every eval_every env steps; the history of
+    one run."""
+    cfg = cfg or load_config(ROOT / "configs" / "toy.yaml")
     cfg.train.seed = seed
     if steps:
         cfg.train.total_env_steps = steps

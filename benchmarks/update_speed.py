@@ -6,7 +6,8 @@ Humanoid dimensions (obs 358, action 69). Each row shows the measured update nex
 the same run: square float32 matmuls of the same total FLOPs (counted with torch's FlopCounterMode on one
 update), i.e. what the update would cost if all its math ran at dense float32 GEMM speed, and a
 straightforward implementation of the same losses (one network at a time, no shared passes). `--bf16` adds
-rows for the optional bf16 autocast switch (`agent.bf16`; float32 master weights and optimiser).
+rows for the optional bf16 autocast switch (`agent.bf16`; float32 master weights and optimiser); `--near` rows for
+the NEAR regulariser (`agent.regulariser: near`, its default 3 x 512 energy) in the discriminator's place.
 """
 from __future__ import annotations
 
@@ -24,10 +25,11 @@ SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}
 OBS, ACT = 358, 69
 
 
-def make(preset: str, device: str, compile_: bool, bf16: bool = False) -> tuple[FBCPRAgent, dict, torch.Tensor]:
+def make(preset: str, device: str, compile_: bool, bf16: bool = False,
+         regulariser: str = "discriminator") -> tuple[FBCPRAgent, dict, torch.Tensor]:
     n = SIZES[preset]
     cfg = config_from_dict({"model": {"preset": preset, "obs_dim": OBS, "action_dim": ACT},
-                            "agent": {"batch_size": n, "compile": compile_, "bf16": bf16}})
+                            "agent": {"batch_size": n, "compile": compile_, "bf16": bf16, "regulariser": regulariser}})
     agent = FBCPRAgent(cfg.model, cfg.agent, device=device)
     g = torch.Generator().manual_seed(0)
     batch = {"obs": torch.randn(n, OBS, generator=g), "action": torch.rand(n, ACT, generator=g) * 2 - 1,
@@ -151,6 +153,7 @@ def main() -> None:
     ap.add_argument("--gpu", action="store_true", help="also time on CUDA")
     ap.add_argument("--compile", action="store_true", help="torch.compile the loss computation (GPU rows)")
     ap.add_argument("--bf16", action="store_true", help="also time the bf16-autocast switch (agent.bf16)")
+    ap.add_argument("--near", action="store_true", help="also time the NEAR regulariser (agent.regulariser: near)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     devices = ["cpu"] + (["cuda"] if args.gpu and torch.cuda.is_available() else [])
@@ -163,10 +166,11 @@ def main() -> None:
             reps = {"tiny": 20, "small": 10}.get(preset, 3) if dev == "cpu" else 20
             ref = matmul_reference(flops, dev, 3)
             naive = time_straightforward(*make(preset, "cpu", False), reps) * 1e3 if dev == "cpu" else float("nan")
-            for bf16 in (False, True) if args.bf16 else (False,):
-                agent, batch, windows = make(preset, dev, args.compile and dev != "cpu", bf16)
+            variants = [(False, "discriminator")] + [(True, "discriminator")] * args.bf16 + [(False, "near")] * args.near
+            for bf16, regulariser in variants:
+                agent, batch, windows = make(preset, dev, args.compile and dev != "cpu", bf16, regulariser)
                 t = time_update(agent, batch, windows, dev, reps)
-                name = dev + ("+bf16" if bf16 else "")
+                name = dev + ("+bf16" if bf16 else "") + ("+near" if regulariser == "near" else "")
                 print(f"{preset:8s} {name:9s} {SIZES[preset]:5d} {flops / 1e9:7.1f} {t * 1e3:10.1f} {ref * 1e3:14.1f} "
                       f"{t / ref:6.2f} {naive:19.1f}", flush=True)
 

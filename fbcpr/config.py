@@ -69,6 +69,17 @@ class ModelConfig:
     norm_eps: float = _f(1e-5, POSITIVE)
 
 
+#: Sources of FB-CPR's policy-regularisation reward (`AgentConfig.regulariser`).
+REGULARISERS = ("discriminator", "near")
+
+
+def _near_config() -> type:
+    """NEARConfig, imported late: fbcpr.near.config builds on this module's validators."""
+    from fbcpr.near.config import NEARConfig
+
+    return NEARConfig
+
+
 @dataclass
 class AgentConfig:
     """Learning hyperparameters of Algorithm 1 (Tables 3 and 9)."""
@@ -97,6 +108,10 @@ class AgentConfig:
     z_uniform: float = _f(0.2, PROB)
     compile: bool = _f(False)
     bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
+    # not in the paper: what the critic's reward comes from, the discriminator's log-ratio or a z-conditioned NEAR
+    # energy (`fbcpr.near.conditional`, configured by `near:`; experimental)
+    regulariser: str = _f("discriminator", _check(lambda v: v in REGULARISERS, f"must be one of {REGULARISERS}"))
+    near: Any = field(default_factory=lambda: _near_config()(), metadata={"check": None, "section": _near_config})
 
     def validate(self, prefix: str) -> None:
         total = self.z_expert + self.z_online + self.z_uniform
@@ -219,7 +234,8 @@ def _build(cls: type, data: Any, prefix: str, sections: dict[str, type] | None =
     kwargs = {}
     for name, value in data.items():
         key = f"{prefix}.{name}" if prefix else name
-        tp = (sections or {}).get(name, hints[name])
+        section = names[name].metadata.get("section")  # a sub-section whose class is imported late
+        tp = (sections or {}).get(name, section() if section is not None else hints[name])
         if dataclasses.is_dataclass(tp):
             kwargs[name] = _build(tp, value, key)
             continue

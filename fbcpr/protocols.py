@@ -6,7 +6,8 @@
                a = agent.act(obs, z)                                    # exploration actions in [-1, 1]
     learning   metrics = agent.update(buffer.sample(fields=agent.fields), expert_windows)
     checkpoint agent.model (-> model.safetensors), agent.state() / load_state() (-> trainer_state.safetensors)
-    optional   agent.observe(obs, next_obs)    # each batch of online transitions as collected (NEAR's annealing)
+    optional   agent.observe(obs, next_obs, z) # each batch of online transitions as collected, with the rollout
+                                               # latents (NEAR's annealing)
 
 `ImitationReward` is a reward learned from demonstrations that plugs into any RL agent: `fit` on expert
 transitions (and, for adversarial rewards, the agent's own), then a batched `reward(obs, next_obs[, z])`. It is

@@ -244,8 +244,8 @@ class Trainer:
         next_obs, _, terminated, truncated, info = env.step(action)
         self.buffer.add({"obs": self.obs, "action": action, "next_obs": info["final_obs"], "z": self.z.cpu().numpy(),
                          "qpos": info["final_qpos"], "qvel": info["final_qvel"], "terminated": terminated})
-        if hasattr(agent, "observe"):  # agents that track their own progress (TD3 with NEAR's annealing)
-            agent.observe(torch.as_tensor(self.obs), torch.as_tensor(info["final_obs"]))
+        if hasattr(agent, "observe"):  # agents that track their own progress (NEAR's annealing, in TD3 or FB-CPR)
+            agent.observe(torch.as_tensor(self.obs), torch.as_tensor(info["final_obs"]), self.z)
         done = np.asarray(terminated | truncated)
         self.obs = next_obs
         self.z_age += 1

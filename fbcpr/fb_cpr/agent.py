@@ -6,6 +6,8 @@ B(s') feeds the FB loss, the orthonormality loss, Sigma_B and the online-goal re
 embeddings of F and Q feed both their TD losses and the actor loss; the actor's next action and the
 target nets feed both TD targets; expert and online states go through the discriminator in one batch.
 The actor loss evaluates F and Q with detached weights, so one backward leaves them untouched by it.
+With `agent.regulariser: near` a z-conditioned energy (`fbcpr.near.conditional`) takes the discriminator's place:
+its DSM loss joins the one backward and its anchored energy is the critic's reward.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from fbcpr.config import AgentConfig, Config, ModelConfig
 from fbcpr.fb_cpr import losses
 from fbcpr.fb_cpr.imitation import discriminator_terms, encode_windows
 from fbcpr.fb_cpr.model import FBCPRModel
+from fbcpr.near.conditional import ConditionalEnergy
 from fbcpr.networks import project_sphere
 from fbcpr.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.precision import resolve_bf16
@@ -44,17 +47,23 @@ class FBCPRAgent:
         self.model = FBCPRModel(model_cfg).to(self.device)
         self.targets = nn.ModuleDict({k: copy.deepcopy(getattr(self.model, k)) for k in TARGETS})
         self.targets.requires_grad_(False)
-        self.optimizers = {
-            k: torch.optim.Adam(getattr(self.model, k).parameters(), lr=getattr(agent_cfg, lr), betas=(0.9, 0.999),
-                                eps=1e-8)
-            for k, lr in OPTIMISED.items()
-        }
+        trained = {k: (getattr(self.model, k), getattr(agent_cfg, lr)) for k, lr in OPTIMISED.items()}
+        self.energy: ConditionalEnergy | None = None  # the NEAR regulariser, which replaces the discriminator's training
+        if agent_cfg.regulariser == "near":
+            self.energy = ConditionalEnergy(model_cfg.obs_dim, model_cfg.z_dim, agent_cfg.near).to(self.device)
+            del trained["discriminator"]
+            trained["energy"] = (self.energy.energy, agent_cfg.near.lr)
+        self.optimizers = {k: torch.optim.Adam(m.parameters(), lr=lr, betas=(0.9, 0.999), eps=1e-8)
+                           for k, (m, lr) in trained.items()}
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(seed)
         self.num_updates = 0
         # torch.compile cannot differentiate twice, so the gradient penalty always runs eagerly
         self._gradient_penalty = (torch.compiler.disable(losses.gradient_penalty) if agent_cfg.compile
                                   else losses.gradient_penalty)
+        if self.energy is not None:  # DSM differentiates twice as well
+            self._expert_energy = (torch.compiler.disable(self.energy.expert_terms) if agent_cfg.compile
+                                   else self.energy.expert_terms)
         self._compute = torch.compile(self._losses) if agent_cfg.compile else self._losses
 
     @classmethod
@@ -79,6 +88,14 @@ class FBCPRAgent:
     def act(self, obs: Tensor, z: Tensor) -> Tensor:
         """The policy's exploration actions (clipped Gaussian noise around the tanh mean)."""
         return self.model.act(obs, z, mean=False, generator=self.generator)
+
+    @torch.no_grad()
+    def observe(self, obs: Tensor, next_obs: Tensor, z: Tensor) -> None:
+        """Online transitions as collected with their rollout latents: the NEAR regulariser's annealing buffer
+        (from the first update on; the discriminator needs nothing)."""
+        if self.energy is not None and self.num_updates > 0:
+            obs, next_obs = obs.to(self.device, torch.float32), next_obs.to(self.device, torch.float32)
+            self.energy.observe(self.model.normalize(obs), next_obs - obs, z.to(self.device))
 
     # ------------------------------------------------------------------------------------- z sampling
     def sample_z(self, n: int, online_b: Tensor | None, expert_z: Tensor | None) -> Tensor:
@@ -120,19 +137,27 @@ class FBCPRAgent:
         expert = expert_windows.to(dev, torch.float32)
         expert_flat = expert.reshape(-1, expert.shape[-1])
         self.model.obs_normalizer.update(torch.cat([obs, expert_flat]))
+        if self.energy is not None:
+            self.energy.step_normalizer.update(expert[:, 1:] - expert[:, :-1])
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
             out = self._compute(obs, action, next_obs, z_buf, terminated, expert)
         total = out.pop("_total")
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
         total.backward()
+        if self.energy is not None:
+            torch.nn.utils.clip_grad_norm_(self.energy.energy.parameters(), self.cfg.near.grad_clip)
         for opt in self.optimizers.values():
             opt.step()
         self.soft_update()
         self.num_updates += 1
         keys = list(out)
         values = torch.stack([out[k].detach().float() for k in keys]).tolist()
-        return dict(zip(keys, values))
+        metrics = dict(zip(keys, values))
+        if self.energy is not None:
+            self.energy.step_ema()
+            metrics.update(self.energy.end_phase(metrics["energy_expert"]))
+        return metrics
 
     def _losses(self, obs: Tensor, action: Tensor, next_obs: Tensor, z_buf: Tensor, terminated: Tensor,
                 expert: Tensor) -> dict[str, Tensor]:
@@ -142,10 +167,18 @@ class FBCPRAgent:
         expert_n = model.normalize(expert)
         discount = cfg.discount * (1.0 - terminated)
 
-        # discriminator: expert (s, ER_FB(window)) vs online (s, z) in one forward, plus WGAN-GP
+        # discriminator: expert (s, ER_FB(window)) vs online (s, z) in one forward, plus WGAN-GP;
+        # or the NEAR regulariser: DSM on expert (s, s' - s | ER_FB(window)) and the anchor of its reward
         z_exp = self.encode_windows(expert_n)
-        logits, disc, gp = discriminator_terms(model.discriminator, expert_n, z_exp, obs_n, z_buf, self.generator,
-                                               self._gradient_penalty)
+        if self.energy is None:
+            logits, disc, gp = discriminator_terms(model.discriminator, expert_n, z_exp, obs_n, z_buf, self.generator,
+                                                   self._gradient_penalty)
+            regulariser = disc + cfg.grad_penalty * gp
+            reg_metrics = {"disc_loss": disc, "grad_penalty": gp, "disc_expert": torch.sigmoid(logits[: w * L]).mean(),
+                           "disc_online": torch.sigmoid(logits[w * L:]).mean()}
+        else:
+            regulariser, anchor = self._expert_energy(expert_n, expert, z_exp, self.generator)
+            reg_metrics = {"dsm_loss": regulariser, "energy_expert": anchor}
 
         # B(s') once: FB loss, ortho loss, Sigma_B, online-goal relabeling
         B_next = model.backward_map(next_n)
@@ -159,7 +192,10 @@ class FBCPRAgent:
                                           cfg.fb_pessimism)
             target_Fz = losses.pessimistic((F_next * z).sum(-1), cfg.fz_pessimism)
             target_Q = losses.pessimistic(tg["critic"](next_n, a_next, z)[..., 0], cfg.critic_pessimism)
-            reward = model.discriminator.logits(obs_n, z)                       # log D - log(1 - D)
+            if self.energy is None:
+                reward = model.discriminator.logits(obs_n, z)                   # log D - log(1 - D)
+            else:
+                reward = self.energy.reward(obs_n, next_obs - obs, z, anchor)    # e(s, s' - s | z) / sigma_k
             r_fz = losses.implicit_reward(B_det, z)
 
         # F: FB TD loss + Fz regularisation; Q: TD on the discriminator reward
@@ -180,12 +216,11 @@ class FBCPRAgent:
         Q_pi = model.critic(obs_n, a_pi, z, detach_params=True, pre=detached(pre_Q))[..., 0]
         actor = losses.actor_loss(Fz_pi, Q_pi, cfg.actor_reg_coef, cfg.actor_pessimism, a_pi, cfg.action_penalty)
 
-        total = (disc + cfg.grad_penalty * gp + fb + cfg.fz_coef * fz + cfg.ortho_coef * ortho + critic + actor)
+        total = (regulariser + fb + cfg.fz_coef * fz + cfg.ortho_coef * ortho + critic + actor)
         return {
             "_total": total, "fb_loss": fb, "fz_loss": fz, "ortho_loss": ortho, "critic_loss": critic,
-            "actor_loss": actor, "disc_loss": disc, "grad_penalty": gp, "reward": reward.mean(),
-            "q": Q_sa.mean(), "fz": Fz_pi.mean(), "M_diag": torch.diagonal(M, dim1=-2, dim2=-1).mean(),
-            "disc_expert": torch.sigmoid(logits[: w * L]).mean(), "disc_online": torch.sigmoid(logits[w * L:]).mean(),
+            "actor_loss": actor, "reward": reward.mean(),
+            "q": Q_sa.mean(), "fz": Fz_pi.mean(), "M_diag": torch.diagonal(M, dim1=-2, dim2=-1).mean(), **reg_metrics,
         }
 
     @torch.no_grad()
@@ -209,6 +244,9 @@ class FBCPRAgent:
         for name, opt in self.optimizers.items():
             meta["optimizers"][name] = optimizer_state(opt, f"optim.{name}", tensors)
         tensors["agent_generator"] = self.generator.get_state()
+        if self.energy is not None:
+            tensors.update({f"near.{k}": v for k, v in self.energy.state_dict().items()})
+            meta["near"] = self.energy.meta()
         return tensors, meta
 
     def load_state(self, tensors: dict[str, Tensor], meta: dict[str, Any]) -> None:
@@ -217,6 +255,12 @@ class FBCPRAgent:
         targets = {k[len("target."):]: v for k, v in tensors.items() if k.startswith("target.")}
         load_state_strict(self.targets, targets, "trainer_state.safetensors (target networks)")
         self.targets.to(self.device)
+        if self.energy is not None:
+            near = {k[len("near."):]: v for k, v in tensors.items() if k.startswith("near.")}
+            load_state_strict(self.energy, near, "trainer_state.safetensors (NEAR regulariser)")
+            if "near" not in meta:
+                raise CheckpointError("trainer_state.safetensors: no NEAR regulariser state (agent.regulariser: near)")
+            self.energy.load_meta(meta["near"])
         try:
             for name, opt in self.optimizers.items():
                 load_optimizer_state(opt, f"optim.{name}", meta["optimizers"][name], tensors)

@@ -29,7 +29,7 @@ from fbcpr import distributed
 from fbcpr.amp.reward import window_transitions
 from fbcpr.near.annealing import Annealer
 from fbcpr.near.config import NEARConfig
-from fbcpr.near.energy import EnergyNet, dsm_loss, noise_levels
+from fbcpr.near.energy import EnergyNet, dsm_loss, ema_update, noise_levels
 from fbcpr.normalizer import RunningNormalizer
 from fbcpr.optim_state import load_optimizer_state, optimizer_state
 
@@ -37,6 +37,16 @@ from fbcpr.optim_state import load_optimizer_state, optimizer_state
 #: Each feature's std in M is at least this fraction of its half's median std: a single clip holds features that
 #: barely move, and standardising by their ~0 spread would blow any deviation of the agent up by orders of magnitude.
 STD_FLOOR = 0.1
+
+
+def level_reward(energy: Tensor, sigma: float, history: deque[float], cfg: NEARConfig) -> Tensor:
+    """The reward of anchored energies at level sigma: e / sigma, or with `cfg.transform` tanh((e / sigma - r') /
+    scale), r' the mean of `history` (the last phases' mean online energies) at the same level."""
+    r = energy / sigma
+    if not cfg.transform:
+        return r
+    recent = float(np.mean(history)) / sigma if history else 0.0
+    return torch.tanh((r - recent) / cfg.transform_scale)
 
 
 class NEARError(ValueError):
@@ -107,8 +117,7 @@ class NEARReward:
             loss.backward()
             torch.nn.utils.clip_grad_norm_(self.energy.parameters(), cfg.grad_clip)
             self.optimizer.step()
-            with torch.no_grad():
-                torch._foreach_lerp_(list(self.ema.parameters()), list(self.energy.parameters()), 1.0 - cfg.ema)
+            ema_update(self.ema, self.energy, cfg.ema)
             losses.append(loss.detach())
         with torch.no_grad():
             self.anchor = float(self.ema(data).mean())
@@ -149,11 +158,7 @@ class NEARReward:
         """e(s, s', sigma_k), or its tanh transform, for raw transitions, (n,); z is not used."""
         if not self.pretrained:
             raise NEARError("NEAR: the energy is not trained yet (fit or pretrain first)")
-        r = self.anchored_energy(obs, next_obs) / self.sigma
-        if not self.cfg.transform:
-            return r
-        recent = float(np.mean(self.phase_energies)) / self.sigma if self.phase_energies else 0.0
-        return torch.tanh((r - recent) / self.cfg.transform_scale)
+        return level_reward(self.anchored_energy(obs, next_obs), self.sigma, self.phase_energies, self.cfg)
 
     # ------------------------------------------------------------------------------------- state
     def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:

@@ -69,9 +69,9 @@ class TD3Agent:
         with torch.no_grad():
             return self.model.actor_sample(self.model.normalize(obs.to(self.device)), self.generator)
 
-    def observe(self, obs: Tensor, next_obs: Tensor) -> None:
+    def observe(self, obs: Tensor, next_obs: Tensor, z: Tensor | None = None) -> None:
         """Online transitions as they are collected, for an imitation reward that tracks the agent's progress
-        (NEAR's annealing); the replay batches `update` gets are too old for that."""
+        (NEAR's annealing); the replay batches `update` gets are too old for that. z (no latent here) is unused."""
         watch = getattr(self.imitation, "observe", None)
         if watch is not None:
             watch(obs.to(self.device), next_obs.to(self.device))
