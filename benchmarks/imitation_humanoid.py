@@ -1,13 +1,19 @@
-"""Single-clip humanoid imitation at a CPU budget: train a TD3 imitation config, then score it next to random.
+"""Single-clip humanoid imitation on one protocol: TD3 on a learned imitation reward, scored next to random.
 
-    python benchmarks/imitation_humanoid.py configs/near-walk.yaml [--seed 0] [--minutes 15] [--out runs/...]
+    python benchmarks/imitation_humanoid.py --reward amp|near|virl|random [--clip walk] [--env-steps 23040]
+                                            [--seeds 0,1] [--minutes 15] [--config PATH] [--out runs/imitation]
 
-Trains the config (stopping early at --minutes of wall time), then rolls the policy out deterministically from
-STARTS reference states spread over the clip (reference state initialisation, as NEAR's evaluation) for HORIZON
-steps, and scores each rollout against the clip: NEAR's DTW pose error (root-relative body positions, metres),
-SPARC of the root speed next to the clip's own, and the seconds until the pelvis first drops below 0.6 m (upright
-time; HORIZON / 30 s when it never does). The uniform random policy is scored the same way. Last line:
-    RESULT method=<reward> clip=<name> dtw=<x> sparc=<x> sparc_expert=<x> upright_s=<x> random_dtw=<x> ...
+For each seed, one at a time: builds the run config as `fbcpr imitate CLIP --reward R` does (the shipped
+`<reward>-walk` config, or --config, with env.motions = the clip; `--clip` is a name in data/clips/deepmimic or
+a .npz path), sets the env-step budget, trains (stopping early, checkpointed, at --minutes of wall time), then
+rolls the policy out deterministically from STARTS reference states spread over the clip (reference state
+initialisation, as NEAR's evaluation) for HORIZON steps and scores each rollout against the clip: NEAR's DTW pose
+error (root-relative body positions, metres), SPARC of the root speed next to the clip's own, and the seconds
+until the pelvis first drops below 0.6 m (upright time; HORIZON / 30 s when it never does). A uniform random
+policy is scored the same way in the same run (the floor); `--reward random` scores only the floor, no training.
+One machine-readable line per seed, last:
+    RESULT method=<reward> clip=<name> seed=<s> env_steps=<n> dtw=<x> sparc=<x> sparc_expert=<x> upright_s=<x>
+           random_dtw=<x> random_sparc=<x> random_upright_s=<x> wall_s=<x> cpu_s=<x> ...
 """
 from __future__ import annotations
 
@@ -15,22 +21,25 @@ import argparse
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 import torch
 
-from fbcpr.config import load_config
+from fbcpr.cli.imitate_cmd import imitation_config
+from fbcpr.envs import EnvBundle, make_env
 from fbcpr.evaluation.agents import RandomAgent, make_agent
 from fbcpr.evaluation.metrics import imitation_scores
 from fbcpr.evaluation.upright import FALLEN
 from fbcpr.trainer import Trainer
 from humanoid_env.model import CONTROL_HZ
 
+ROOT = Path(__file__).resolve().parents[1]
+CLIPS = ROOT / "data" / "clips" / "deepmimic"
 STARTS, HORIZON = 8, 150
 
 
-def score(agent: Any, bundle: Any) -> dict[str, float]:
+def score(agent: Any, bundle: EnvBundle) -> dict[str, float]:
     """Mean DTW, SPARC and upright seconds of `agent` from STARTS clip states, against the (single) clip."""
     clip = bundle.library.clips[0]
     frames = np.linspace(0, clip.n_frames - 2, STARTS).astype(int)
@@ -43,7 +52,7 @@ def score(agent: Any, bundle: Any) -> dict[str, float]:
             traj.append(obs)
     finally:
         env.close()
-    paths = np.stack(traj, 1)                                                   # (STARTS, HORIZON + 1, 358)
+    paths = np.stack(traj, 1)                                                   # (STARTS, HORIZON + 1, obs_dim)
     scores = [imitation_scores(p, clip.obs) for p in paths]
     down = paths[:, :, 0] < FALLEN
     upright = np.where(down.any(1), down.argmax(1), HORIZON) / CONTROL_HZ
@@ -51,27 +60,63 @@ def score(agent: Any, bundle: Any) -> dict[str, float]:
             "sparc_expert": scores[0]["sparc_expert"], "upright_s": float(upright.mean())}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("config")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--minutes", type=float, default=15.0, help="wall-clock cap on training")
-    ap.add_argument("--out", default=None)
-    args = ap.parse_args()
-    cfg = load_config(args.config)
-    cfg.train.seed = args.seed
+def clip_path(clip: str) -> Path:
+    """A clip name of data/clips/deepmimic, or a path to a clip .npz."""
+    path = Path(clip) if clip.endswith(".npz") else CLIPS / f"{clip}.npz"
+    if not path.is_file():
+        names = sorted(p.stem for p in CLIPS.glob("*.npz"))
+        raise SystemExit(f"--clip: {path} is not a file; give a .npz or one of {names}")
+    return path
+
+
+def run_seed(reward: str, clip: Path, seed: int, env_steps: int, minutes: float, config: Optional[Path],
+             out: Path) -> dict[str, Any]:
+    """Train one seed (unless `reward` is random) and score it and the random floor."""
+    cfg, _ = imitation_config(str(clip), "amp" if reward == "random" else reward, config)
+    cfg.train.seed, cfg.train.total_env_steps = seed, env_steps
+    cfg.train.warmup_steps = min(cfg.train.warmup_steps, env_steps // 2)
     torch.set_num_threads(cfg.train.torch_threads or 1)
-    out = Path(args.out or f"runs/{Path(args.config).stem}-s{args.seed}")
+    result: dict[str, Any] = {"method": reward, "clip": clip.stem, "seed": seed}
+    if reward == "random":  # the floor alone, in the walk configs' env (same action mapping)
+        bundle = make_env(cfg.env, 1, seed, 1)
+        result.update({f"random_{k}": v for k, v in score(RandomAgent(seed), bundle).items()})
+        bundle.env.close()
+        return result
     t0, c0 = time.perf_counter(), time.process_time()
     trainer = Trainer(cfg, out, progress=False)
-    summary = trainer.run(deadline=time.monotonic() + 60 * args.minutes)
-    cost = {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "env_steps": trainer.env_steps}
-    learned = score(make_agent(summary["checkpoint"]), trainer.bundle)
-    floor = score(RandomAgent(args.seed), trainer.bundle)
-    result = {"method": cfg.agent.reward.imitation, "clip": trainer.bundle.library.names[0], **learned,
-              **{f"random_{k}": v for k, v in floor.items()}, **cost}
-    (out / "imitation.json").write_text(json.dumps(result, indent=1))
-    print("RESULT " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in result.items()))
+    try:
+        summary = trainer.run(deadline=time.monotonic() + 60 * minutes)
+    finally:
+        trainer.close()
+    result.update({"env_steps": summary["env_steps"], "updates": summary["updates"],
+                   "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0})
+    result.update(score(make_agent(summary["checkpoint"]), trainer.bundle))
+    result.update({f"random_{k}": v for k, v in score(RandomAgent(seed), trainer.bundle).items() if k != "sparc_expert"})
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--reward", required=True, choices=["amp", "near", "virl", "random"])
+    ap.add_argument("--clip", default="walk", help="clip name in data/clips/deepmimic, or a .npz path")
+    ap.add_argument("--env-steps", type=int, default=23040, help="env-step budget per seed")
+    ap.add_argument("--seeds", default="0", help="comma-separated training seeds, run one after another")
+    ap.add_argument("--minutes", type=float, default=15.0, help="wall-clock cap on each seed's training")
+    ap.add_argument("--config", type=Path, default=None, help="TD3 config instead of the shipped <reward>-walk")
+    ap.add_argument("--out", type=Path, default=ROOT / "runs" / "imitation", help="parent of the run directories")
+    args = ap.parse_args()
+    clip = clip_path(args.clip)
+    lines = []
+    for seed in (int(s) for s in args.seeds.split(",")):
+        out = args.out / f"{args.reward}-{clip.stem}-s{seed}"
+        result = run_seed(args.reward, clip, seed, args.env_steps, args.minutes, args.config, out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "imitation.json").write_text(json.dumps(result, indent=1))
+        lines.append("RESULT " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                                          for k, v in result.items()))
+        print(lines[-1], flush=True)
+    if len(lines) > 1:  # all seeds together at the end, past the training logs
+        print("\n".join(lines))
 
 
 if __name__ == "__main__":
