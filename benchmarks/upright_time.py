@@ -4,14 +4,35 @@ For each agent (the zero-action and random floors, then checkpoints) prompted wi
 until the pelvis drops below 0.6 m from standing starts (median, mean ± std), and the share of fall starts
 after which the pelvis stays above 0.8 m over the whole last second (got up). See fbcpr.evaluation.upright.
 
+`--probe` asks whether a model's balance depends on its prompt at all: for each checkpoint, seconds upright from
+standing starts also under the t_pose goal, the imitation z of a clip (`--clip`) and random unit z's.
+
     python benchmarks/upright_time.py runs/cpu-rest/checkpoints/step_0000100352 pretrained --episodes 16
+    python benchmarks/upright_time.py pretrained --probe --clip data/clips/deepmimic/walk.npz --episodes 8
 """
 from __future__ import annotations
 
 import argparse
 
+from typing import Any
+
+import numpy as np
+
 from fbcpr.evaluation.agents import make_agent
-from fbcpr.evaluation.upright import upright
+from fbcpr.evaluation.upright import pelvis_heights, seconds_upright, upright
+
+
+def probe_prompts(agent: Any, clip: str | None, random_z: int, seed: int) -> dict[str, np.ndarray]:
+    """z's beside the stand reward's: a goal pose, a clip's imitation z and random unit z's."""
+    zs = {"goal t_pose": agent.goal_z("t_pose")}
+    if clip is not None:
+        from motions.clip import load_clip
+
+        zs[f"imitate {clip}"] = agent.imitate_z(load_clip(clip))
+    rng = np.random.default_rng(seed)
+    for i in range(random_z):
+        zs[f"random z {i}"] = agent.project_z(rng.standard_normal(agent.z_dim))
+    return zs
 
 
 def main() -> None:
@@ -20,12 +41,23 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=16)
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--probe", action="store_true", help="also other prompts than the stand reward (checkpoints only)")
+    ap.add_argument("--clip", help="with --probe: a clip .npz whose imitation z is probed")
+    ap.add_argument("--random-z", type=int, default=2, help="with --probe: how many random unit z's")
     args = ap.parse_args()
+    from humanoid_env.inits import DefaultInit
+
     print(f"{'agent':60s} {'median s':>9s} {'mean ± std s':>14s} {'got up':>7s}")
     for spec in ["zero", "random", *args.agents]:
-        res = upright(make_agent(spec, seed=args.seed), args.episodes, args.steps, args.seed)
+        agent = make_agent(spec, seed=args.seed)
+        res = upright(agent, args.episodes, args.steps, args.seed)
         print(f"{spec:60s} {res.median_seconds:9.2f} {res.seconds.mean():8.2f} ± {res.seconds.std():4.2f} "
               f"{res.share_got_up:7.2f}", flush=True)
+        if not args.probe or spec in ("zero", "random"):
+            continue
+        for name, z in probe_prompts(agent, args.clip, args.random_z, args.seed).items():
+            sec = seconds_upright(pelvis_heights(agent, DefaultInit(), args.episodes, args.steps, args.seed, z))
+            print(f"{'  z = ' + name:60s} {np.median(sec):9.2f} {sec.mean():8.2f} ± {sec.std():4.2f}", flush=True)
 
 
 if __name__ == "__main__":

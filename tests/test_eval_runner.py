@@ -171,6 +171,30 @@ def test_upright_measures_separate_holding_still_from_random_actions():
     assert rand.median_seconds < 1.2 and not rand.got_up.any()  # random PD targets fall within about a second
 
 
+def test_seconds_upright_counts_until_the_first_drop_and_a_given_z_reaches_the_agent():
+    from fbcpr.evaluation.upright import pelvis_heights, seconds_upright
+    from humanoid_env.inits import DefaultInit
+
+    h = np.full((60, 3), 0.9)
+    h[15:, 0] = 0.3           # falls at step 15 (0.5 s at 30 Hz)
+    h[40, 1] = 0.5            # one dip at step 40 counts as the fall
+    np.testing.assert_allclose(seconds_upright(h), [0.5, 40 / 30, 2.0])
+
+    class Recorder(ZeroAgent):
+        z_dim = 4
+
+        def __init__(self):
+            self.seen = []
+
+        def act(self, obs, z):
+            self.seen.append(np.array(z))
+            return super().act(obs, z)
+
+    agent = Recorder()
+    pelvis_heights(agent, DefaultInit(), episodes=2, steps=2, seed=0, prompt=np.arange(4.0))
+    assert all(z.shape == (2, 4) and (z == np.arange(4.0)).all() for z in agent.seen)
+
+
 class Unpromptable(PoseOracle):
     """Cannot be prompted for one reward task (as a checkpoint whose buffer that reward is zero on), and is
     interrupted (Ctrl-C) when asked for `stop_at` goal."""

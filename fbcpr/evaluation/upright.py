@@ -34,14 +34,17 @@ class Upright:
         return float(np.mean(self.got_up))
 
 
-def pelvis_heights(agent: Any, init: Any, episodes: int, steps: int, seed: int, prompt: str = STAND_PROMPT) -> np.ndarray:
-    """Pelvis heights (steps, episodes) of the agent prompted with `prompt` from `init` starts."""
+def pelvis_heights(agent: Any, init: Any, episodes: int, steps: int, seed: int,
+                   prompt: str | np.ndarray = STAND_PROMPT) -> np.ndarray:
+    """Pelvis heights (steps, episodes) of the agent prompted with `prompt` (a reward name, or a z) from `init`
+    starts."""
     from humanoid_env.vector import VectorHumanoidEnv
 
     env = VectorHumanoidEnv(episodes, init=init, max_episode_steps=steps + 1, action_mapping=action_mapping(agent))
     try:
         obs, _ = env.reset(seed=seed)
-        z = np.broadcast_to(agent.reward_z(prompt), (episodes, agent.z_dim))
+        z = agent.reward_z(prompt) if isinstance(prompt, str) else np.asarray(prompt, dtype=np.float32)
+        z = np.broadcast_to(z, (episodes, agent.z_dim))
         heights = np.empty((steps, episodes))
         for t in range(steps):
             obs, *_ = env.step(agent.act(obs, z))
@@ -51,11 +54,16 @@ def pelvis_heights(agent: Any, init: Any, episodes: int, steps: int, seed: int, 
     return heights
 
 
+def seconds_upright(heights: np.ndarray) -> np.ndarray:
+    """Per episode, seconds until the pelvis first drops below `FALLEN` (the whole episode if it never does)."""
+    fallen = heights < FALLEN
+    return np.where(fallen.any(0), fallen.argmax(0), heights.shape[0]) / CONTROL_HZ
+
+
 def upright(agent: Any, episodes: int = 16, steps: int = 300, seed: int = 0) -> Upright:
     """Both measures for one agent (a BFM or a floor baseline), `episodes` each, seeded."""
     from humanoid_env.inits import DefaultInit, FallInit
 
     h = pelvis_heights(agent, DefaultInit(), episodes, steps, seed)
-    fell = np.where((h < FALLEN).any(0), (h < FALLEN).argmax(0), steps) / CONTROL_HZ
     up = pelvis_heights(agent, FallInit(), episodes, steps, seed + 1)
-    return Upright(seconds=fell, got_up=(up[-CONTROL_HZ:] > STANDING).all(0))
+    return Upright(seconds=seconds_upright(h), got_up=(up[-CONTROL_HZ:] > STANDING).all(0))
