@@ -30,9 +30,8 @@ from fbcpr.cli.imitate_cmd import imitation_config
 from fbcpr.envs import EnvBundle, make_env
 from fbcpr.evaluation.agents import RandomAgent, make_agent
 from fbcpr.evaluation.metrics import imitation_scores
-from fbcpr.evaluation.upright import FALLEN
+from fbcpr.evaluation.upright import seconds_upright
 from fbcpr.trainer import Trainer
-from humanoid_env.model import CONTROL_HZ
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIPS = ROOT / "data" / "clips" / "deepmimic"
@@ -54,8 +53,7 @@ def score(agent: Any, bundle: EnvBundle) -> dict[str, float]:
         env.close()
     paths = np.stack(traj, 1)                                                   # (STARTS, HORIZON + 1, obs_dim)
     scores = [imitation_scores(p, clip.obs) for p in paths]
-    down = paths[:, :, 0] < FALLEN
-    upright = np.where(down.any(1), down.argmax(1), HORIZON) / CONTROL_HZ
+    upright = seconds_upright(paths[:, :-1, 0].T)   # first HORIZON frames: a fall seen only in the last one counts as none
     return {"dtw": float(np.mean([s["dtw"] for s in scores])), "sparc": float(np.mean([s["sparc"] for s in scores])),
             "sparc_expert": scores[0]["sparc_expert"], "upright_s": float(upright.mean())}
 

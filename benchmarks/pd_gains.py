@@ -16,7 +16,8 @@ import mujoco
 import numpy as np
 
 import humanoid_env.vector as vector
-from humanoid_env.model import CONTROL_HZ, JOINT_NAMES, load_model
+from fbcpr.evaluation.upright import seconds_upright
+from humanoid_env.model import JOINT_NAMES, load_model
 
 #: (name fragments, kp, kd, force limit) per joint group, HumEnv's values.
 HUMENV_GAINS = ((("Torso", "Spine", "Chest"), 240, 4, 360), (("Hip", "Knee"), 180, 2, 360), (("Thorax",), 120, 1.6, 240),
@@ -57,8 +58,7 @@ def upright_seconds(loader: Callable[[], mujoco.MjModel], sigma: float, rho: flo
         obs, *_ = env.step(np.clip(action, -1, 1))
         heights[t] = obs[:, 0]
     env.close()
-    fell = heights < 0.6
-    return float(np.median(np.where(fell.any(0), fell.argmax(0), steps) / CONTROL_HZ))
+    return float(np.median(seconds_upright(heights)))
 
 
 def main() -> None:
