@@ -128,6 +128,10 @@ class EnvConfig:
     fall_prob: float = _f(0.2, PROB)
     max_episode_steps: int = _f(300, _range(1, 10**7))
     action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
+    # humanoid: truncate a training episode (not terminate: no reward or objective changes) once the pelvis has
+    # been below 0.6 m this many seconds in a row, so the buffer holds more upright states and fewer of lying
+    # still; 0 = off (the paper). Evaluation episodes always run their full length.
+    reset_fallen_s: float = _f(0.0, _range(0.0, 3600.0))
     # reuse (fbcpr.npmp.reuse): an NPMP checkpoint whose frozen decoder turns actions in its latent space into the
     # env's actions; the agent then acts with the AR(1) prior's innovation eps = npmp_innovation_scale * a
     npmp: str | None = _f(None)
@@ -265,6 +269,8 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if cfg.agent.batch_size % cfg.agent.seq_length:
         raise ConfigError(f"agent.batch_size: must be a multiple of agent.seq_length ({cfg.agent.seq_length}), "
                           f"got {cfg.agent.batch_size}")
+    if cfg.env.reset_fallen_s and cfg.env.name != "humanoid":
+        raise ConfigError(f"env.reset_fallen_s: only the humanoid falls; set it to 0 for env.name {cfg.env.name!r}")
     if cfg.env.npmp is not None and (cfg.algorithm != "td3" or cfg.agent.reward.imitation):
         raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
                           "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")

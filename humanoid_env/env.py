@@ -35,6 +35,15 @@ EPISODE_START_TIME = 1.0
 #: Default bound on |qvel| (m/s for the root, rad/s for hinges) beyond which a simulation counts as diverged.
 MAX_QVEL = 500.0
 DEFAULT_EPISODE_STEPS = 300
+#: Pelvis height (m) below which the body counts as fallen (evaluation's upright time uses the same line).
+FALLEN_HEIGHT = 0.6
+
+
+def check_reset_fallen(steps: int) -> int:
+    """Validate `reset_fallen_after` (env steps spent fallen before the episode is truncated; 0: never)."""
+    if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool) or steps < 0:
+        raise EnvError(f"reset_fallen_after must be an int >= 0 (env steps; 0 = off), got {steps!r}")
+    return int(steps)
 
 
 class InitSampler(Protocol):
@@ -89,6 +98,7 @@ class HumanoidEnv(gym.Env):
         width: int = 320,
         height: int = 240,
         action_mapping: str = DEFAULT_ACTION_MAPPING,
+        reset_fallen_after: int = 0,
     ) -> None:
         if render_mode not in (None, "rgb_array"):
             raise EnvError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -102,6 +112,7 @@ class HumanoidEnv(gym.Env):
         self.reward_fn = resolve_reward(reward)
         self.termination_fn = termination
         self.max_episode_steps = int(max_episode_steps)
+        self.reset_fallen_after = check_reset_fallen(reset_fallen_after)
         self.max_qvel = float(max_qvel)
         self.render_mode = render_mode
         self._size = (height, width)
@@ -113,6 +124,7 @@ class HumanoidEnv(gym.Env):
         self._obs = np.zeros(OBS_DIM, np.float32)
         self._good_qpos, self._good_qvel = self.data.qpos.copy(), self.data.qvel.copy()
         self._steps = 0
+        self._fallen_steps = 0
 
     def _observe(self) -> np.ndarray:
         xpos, xmat, cvel, com = read_kinematics(self.model, self.data)
@@ -137,7 +149,7 @@ class HumanoidEnv(gym.Env):
         self.data.qvel[:] = qvel
         self.data.time = EPISODE_START_TIME
         mujoco.mj_forward(self.model, self.data)
-        self._steps = 0
+        self._steps = self._fallen_steps = 0
         obs = self._observe()
         if not np.isfinite(obs).all():
             raise InvalidStateError("reset: the state's observation is not finite (qpos/qvel beyond float32 range?)")
@@ -168,7 +180,8 @@ class HumanoidEnv(gym.Env):
                 reward = float(self.reward_fn(obs[None], self._act[None].astype(np.float32), info["qpos"][None], info["qvel"][None])[0])
             if self.termination_fn is not None:
                 terminated = bool(self.termination_fn(obs[None], info["qpos"][None], info["qvel"][None])[0])
-        truncated = self._steps >= self.max_episode_steps
+        self._fallen_steps = self._fallen_steps + 1 if info["qpos"][2] < FALLEN_HEIGHT else 0
+        truncated = self._steps >= self.max_episode_steps or 0 < self.reset_fallen_after <= self._fallen_steps
         return obs, reward, terminated, truncated, info
 
     def render(self) -> np.ndarray | None:

@@ -22,11 +22,13 @@ from humanoid_env.env import (
     DEFAULT_EPISODE_STEPS,
     DIVERGENCE_WARNINGS,
     EPISODE_START_TIME,
+    FALLEN_HEIGHT,
     MAX_QVEL,
     InitSampler,
     RewardFn,
     TerminationFn,
     _state_options,
+    check_reset_fallen,
     check_state,
     resolve_reward,
 )
@@ -53,6 +55,7 @@ class VectorHumanoidEnv(VectorEnv):
         max_episode_steps: int = DEFAULT_EPISODE_STEPS,
         max_qvel: float = MAX_QVEL,
         action_mapping: str = DEFAULT_ACTION_MAPPING,
+        reset_fallen_after: int = 0,
     ) -> None:
         if num_envs < 1:
             raise EnvError(f"num_envs must be >= 1, got {num_envs}")
@@ -68,6 +71,7 @@ class VectorHumanoidEnv(VectorEnv):
         self.reward_fn = resolve_reward(reward)
         self.termination_fn = termination
         self.max_episode_steps = int(max_episode_steps)
+        self.reset_fallen_after = check_reset_fallen(reset_fallen_after)
         self.max_qvel = float(max_qvel)
         self.render_mode = None
         self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
@@ -84,6 +88,7 @@ class VectorHumanoidEnv(VectorEnv):
         self._obs = np.zeros((self.num_envs, OBS_DIM), np.float32)
         self._good_qpos, self._good_qvel = self._qpos.copy(), self._qvel.copy()
         self._steps = np.zeros(self.num_envs, np.int64)
+        self._fallen_steps = np.zeros(self.num_envs, np.int64)
         self._np_random, self._np_random_seed = seeding.np_random(None)
 
     def _observe(self, ids: np.ndarray | None = None) -> np.ndarray:
@@ -107,6 +112,7 @@ class VectorHumanoidEnv(VectorEnv):
         self._obs[ids] = obs
         self._good_qpos[ids], self._good_qvel[ids] = qpos, qvel
         self._steps[ids] = 0
+        self._fallen_steps[ids] = 0
 
     def _sample(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         qpos, qvel = self.init.sample(self.np_random, k)
@@ -156,7 +162,10 @@ class VectorHumanoidEnv(VectorEnv):
         if self.termination_fn is not None:
             terminated |= np.asarray(self.termination_fn(obs, qpos, qvel), dtype=bool).reshape(self.num_envs)
         self._steps += 1
+        self._fallen_steps = np.where(qpos[:, 2] < FALLEN_HEIGHT, self._fallen_steps + 1, 0)
         truncated = self._steps >= self.max_episode_steps
+        if self.reset_fallen_after:
+            truncated |= self._fallen_steps >= self.reset_fallen_after
         done = terminated | truncated
 
         self._obs, self._good_qpos, self._good_qvel = obs, qpos, qvel

@@ -20,6 +20,8 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
     ({"model": {"hidden_dim": 33}}, "model.hidden_dim"),
     ({"model": {"z_dim": True}}, "model.z_dim"),
     ({"env": {"name": "atari"}}, "env.name"),
+    ({"env": {"reset_fallen_s": -1.0}}, "env.reset_fallen_s"),
+    ({"env": {"name": "toy", "reset_fallen_s": 1.0}}, "env.reset_fallen_s"),  # only the humanoid falls
     ({"train": {"device": "tpu"}}, "train.device"),
     ({"train": {"lr": float("nan")}}, "train.lr"),
     ({"model": [1, 2]}, "model"),

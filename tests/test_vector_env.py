@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
 
-from humanoid_env.env import HumanoidEnv
-from humanoid_env.inits import FallInit, make_init
+from humanoid_env.env import FALLEN_HEIGHT, HumanoidEnv
+from humanoid_env.errors import EnvError
+from humanoid_env.inits import DefaultInit, FallInit, make_init
 from humanoid_env.model import NQ, NV
 from humanoid_env.observation import observe
 from humanoid_env.vector import VectorHumanoidEnv
@@ -124,3 +125,52 @@ def test_reward_by_task_name():
     assert reward.shape == (2,) and ((reward >= 0) & (reward <= 1)).all()
     with pytest.raises(ValueError, match="unknown reward"):
         VectorHumanoidEnv(1, reward="no-such-task")
+
+
+def _first_run_end(heights, k):
+    """Index of the step at which the pelvis has been below the fallen line k steps in a row (None: never)."""
+    run = 0
+    for t, h in enumerate(heights):
+        run = run + 1 if h < FALLEN_HEIGHT else 0
+        if run == k:
+            return t
+    return None
+
+
+def test_reset_fallen_after_truncates_lying_envs_only():
+    qs, vs = DefaultInit().sample(np.random.default_rng(0), 1)
+    qf, vf = FallInit().sample(np.random.default_rng(1), 1)
+    start = {"qpos": np.concatenate([qs, qf]), "qvel": np.concatenate([vs, vf])}
+    zero, steps, k = np.zeros((2, 69), np.float32), 60, 7
+    free = VectorHumanoidEnv(2, num_threads=1, max_episode_steps=steps + 1)
+    free.reset(options=start)
+    heights = np.stack([free.step(zero)[4]["final_qpos"][:, 2] for _ in range(steps)])
+    end = _first_run_end(heights[:, 1], k)
+    assert _first_run_end(heights[:, 0], 1) is None and end is not None  # one stands, the other lies
+
+    env = VectorHumanoidEnv(2, num_threads=1, max_episode_steps=steps + 1, reset_fallen_after=k)
+    env.reset(options=start)
+    truncs = np.stack([env.step(zero)[3] for _ in range(end + 1)])
+    assert not truncs[:, 0].any() and np.flatnonzero(truncs[:, 1]).tolist() == [end]
+
+    single = HumanoidEnv(max_episode_steps=steps + 1, reset_fallen_after=k)
+    single.reset(options={"qpos": qf[0], "qvel": vf[0]})
+    assert [single.step(zero[0])[3] for _ in range(end + 1)].index(True) == end
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, True])
+def test_reset_fallen_after_rejects_bad_values(bad):
+    with pytest.raises(EnvError, match="reset_fallen_after"):
+        VectorHumanoidEnv(1, reset_fallen_after=bad)
+    with pytest.raises(EnvError, match="reset_fallen_after"):
+        HumanoidEnv(reset_fallen_after=bad)
+
+
+@pytest.mark.parametrize("seconds, steps", [(0.0, 0), (0.5, 15), (0.01, 1)])
+def test_config_reset_fallen_s_reaches_the_training_env_only(seconds, steps):
+    from fbcpr.config import EnvConfig
+    from fbcpr.envs import make_env
+
+    bundle = make_env(EnvConfig(name="humanoid", reset_fallen_s=seconds), 1, 0)
+    assert bundle.env.reset_fallen_after == steps
+    assert bundle.make_eval_env(1, 10).reset_fallen_after == 0  # evaluation episodes run their full length

@@ -12,9 +12,10 @@ from typing import Any
 import numpy as np
 
 from fbcpr.evaluation.agents import action_mapping
+from humanoid_env.env import FALLEN_HEIGHT
 from humanoid_env.model import CONTROL_HZ
 
-FALLEN, STANDING = 0.6, 0.8
+FALLEN, STANDING = FALLEN_HEIGHT, 0.8
 STAND_PROMPT = "move-ego-0-0"
 
 
