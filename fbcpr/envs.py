@@ -92,7 +92,7 @@ def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
 def _humanoid(cfg: EnvConfig, num_envs: int, threads: int | None = None) -> EnvBundle:
     from humanoid_env import NQ, NU, NV, OBS_DIM
     from humanoid_env.inits import make_init
-    from humanoid_env.model import CONTROL_HZ
+    from humanoid_env.env import reset_fallen_steps
     from humanoid_env.vector import VectorHumanoidEnv
     from motions.library import MotionLibrary
 
@@ -120,7 +120,7 @@ def _humanoid(cfg: EnvConfig, num_envs: int, threads: int | None = None) -> EnvB
     return EnvBundle(
         env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib), max_episode_steps=cfg.max_episode_steps,
                               action_mapping=cfg.action_mapping, num_threads=threads,
-                              reset_fallen_after=max(round(cfg.reset_fallen_s * CONTROL_HZ), int(cfg.reset_fallen_s > 0))),
+                              reset_fallen_after=reset_fallen_steps(cfg.reset_fallen_s)),
         library=lib, obs_dim=OBS_DIM, action_dim=NU, nq=NQ, nv=NV,
         make_eval_env=lambda n, steps: VectorHumanoidEnv(n, max_episode_steps=steps, action_mapping=cfg.action_mapping),
         clip_obs=lambda i: lib.clips[i].obs,

@@ -15,7 +15,7 @@ import numpy as np
 
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap, check_action
 from humanoid_env.errors import EnvError, InvalidStateError
-from humanoid_env.model import N_SUBSTEPS, NQ, NU, NV, load_model
+from humanoid_env.model import CONTROL_HZ, N_SUBSTEPS, NQ, NU, NV, load_model
 from humanoid_env.observation import OBS_DIM, assemble, read_kinematics
 
 #: RewardFn(obs (N,358), action (N,69) | None, qpos (N,76), qvel (N,75)) -> (N,), on the next state.
@@ -44,6 +44,11 @@ def check_reset_fallen(steps: int) -> int:
     if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool) or steps < 0:
         raise EnvError(f"reset_fallen_after must be an int >= 0 (env steps; 0 = off), got {steps!r}")
     return int(steps)
+
+
+def reset_fallen_steps(seconds: float) -> int:
+    """`reset_fallen_after` for a time in seconds: whole control steps, at least one when the reset is on."""
+    return max(round(seconds * CONTROL_HZ), int(seconds > 0))
 
 
 class InitSampler(Protocol):
