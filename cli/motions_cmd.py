@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Optional
@@ -141,6 +142,32 @@ def import_cmd(
     if failed:
         err_console.print(f"{len(failed)} file(s) failed; see {out / 'import_summary.json'}")
         raise typer.Exit(1)
+
+
+@motions_app.command("synthetic")
+@cli_errors
+def synthetic_cmd(
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for the clip .npz files (created if missing)."),
+    prefix: str = typer.Option("synthetic_", "--prefix", help="Put before each clip's name and file name, so the "
+                               "clips sit beside imported ones without a clash (DeepMimic has a 'walk' too)."),
+) -> None:
+    """Write the built-in clips (stand, tpose, arm_raise, squat, walk, turn) into a folder, e.g. beside imported
+    clips, so that a training run's demonstrations and MoCap init also hold standing states."""
+    from dataclasses import replace
+
+    from motions.clip import save_clip
+    from motions.synthetic import default_clips
+
+    if not re.fullmatch(r"[A-Za-z0-9_-]*", prefix):
+        raise typer.BadParameter("--prefix may only hold letters, digits, '_' and '-'")
+    clips = [replace(c, name=f"{prefix}{c.name}") for c in default_clips()]
+    clashes = [c.name for c in clips if (out / f"{c.name}.npz").exists()]
+    if clashes:
+        raise FileExistsError(f"{out}: {', '.join(clashes)}.npz already exist; give another --prefix or --out")
+    for clip in clips:
+        save_clip(clip, out / f"{clip.name}.npz")
+    console.print(f"wrote {len(clips)} clips ({sum(c.seconds for c in clips):.1f} s) to {out}: "
+                  + ", ".join(c.name for c in clips), highlight=False)
 
 
 @motions_app.command("info")

@@ -136,3 +136,23 @@ def test_import_with_a_joint_map(tmp_path, monkeypatch):
     res = runner.invoke(app, ["motions", "import", str(tmp_path / "odd.bvh"), "--out", str(out),
                               "--joint-map", str(tmp_path / "bad.yaml")], env={"COLUMNS": "300"})
     assert res.exit_code == 1 and "bad.yaml:2:1: invalid YAML" in res.output
+
+
+def test_synthetic_writes_the_built_in_clips_beside_others_without_a_clash(tmp_path):
+    from motions.library import MotionLibrary
+    from motions.synthetic import stand
+
+    res = runner.invoke(app, ["motions", "synthetic", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    names = sorted(p.stem for p in tmp_path.glob("*.npz"))
+    assert names == sorted(f"synthetic_{n}" for n in ("stand", "tpose", "arm_raise", "squat", "walk", "turn"))
+    clip = load_clip(tmp_path / "synthetic_stand.npz")
+    assert clip.name == "synthetic_stand"
+    np.testing.assert_allclose(clip.qpos, stand().qpos)
+    assert sorted(MotionLibrary.load(tmp_path).names) == names
+    before = (tmp_path / "synthetic_walk.npz").read_bytes()
+    again = runner.invoke(app, ["motions", "synthetic", "--out", str(tmp_path)])
+    assert again.exit_code == 1 and "already exist" in again.output  # nothing is overwritten
+    assert (tmp_path / "synthetic_walk.npz").read_bytes() == before
+    bad = runner.invoke(app, ["motions", "synthetic", "--out", str(tmp_path), "--prefix", "../x"])
+    assert bad.exit_code != 0 and "--prefix" in bad.output
