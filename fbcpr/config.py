@@ -132,6 +132,9 @@ class EnvConfig:
     # been below 0.6 m this many seconds in a row, so the buffer holds more upright states and fewer of lying
     # still; 0 = off (the paper). Evaluation episodes always run their full length.
     reset_fallen_s: float = _f(0.0, _range(0.0, 3600.0))
+    # ... and end it as a termination instead: lying fallen becomes an absorbing state worth 0, which changes the
+    # objective (single-task agents on rewards >= 0 then value staying up; lying-down tasks become unlearnable)
+    fallen_terminates: bool = _f(False)
     # reuse (fbcpr.npmp.reuse): an NPMP checkpoint whose frozen decoder turns actions in its latent space into the
     # env's actions; the agent then acts with the AR(1) prior's innovation eps = npmp_innovation_scale * a
     npmp: str | None = _f(None)
@@ -271,6 +274,8 @@ def config_from_dict(data: dict[str, Any]) -> Config:
                           f"got {cfg.agent.batch_size}")
     if cfg.env.reset_fallen_s and cfg.env.name != "humanoid":
         raise ConfigError(f"env.reset_fallen_s: only the humanoid falls; set it to 0 for env.name {cfg.env.name!r}")
+    if cfg.env.fallen_terminates and not cfg.env.reset_fallen_s:
+        raise ConfigError("env.fallen_terminates: needs env.reset_fallen_s > 0 (how long fallen ends an episode)")
     if cfg.env.npmp is not None and (cfg.algorithm != "td3" or cfg.agent.reward.imitation):
         raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
                           "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")

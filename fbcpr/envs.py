@@ -120,7 +120,8 @@ def _humanoid(cfg: EnvConfig, num_envs: int, threads: int | None = None) -> EnvB
     return EnvBundle(
         env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib), max_episode_steps=cfg.max_episode_steps,
                               action_mapping=cfg.action_mapping, num_threads=threads,
-                              reset_fallen_after=reset_fallen_steps(cfg.reset_fallen_s)),
+                              reset_fallen_after=reset_fallen_steps(cfg.reset_fallen_s),
+                              fallen_terminates=cfg.fallen_terminates),
         library=lib, obs_dim=OBS_DIM, action_dim=NU, nq=NQ, nv=NV,
         make_eval_env=lambda n, steps: VectorHumanoidEnv(n, max_episode_steps=steps, action_mapping=cfg.action_mapping),
         clip_obs=lambda i: lib.clips[i].obs,

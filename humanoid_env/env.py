@@ -104,6 +104,7 @@ class HumanoidEnv(gym.Env):
         height: int = 240,
         action_mapping: str = DEFAULT_ACTION_MAPPING,
         reset_fallen_after: int = 0,
+        fallen_terminates: bool = False,
     ) -> None:
         if render_mode not in (None, "rgb_array"):
             raise EnvError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -118,6 +119,7 @@ class HumanoidEnv(gym.Env):
         self.termination_fn = termination
         self.max_episode_steps = int(max_episode_steps)
         self.reset_fallen_after = check_reset_fallen(reset_fallen_after)
+        self.fallen_terminates = bool(fallen_terminates)
         self.max_qvel = float(max_qvel)
         self.render_mode = render_mode
         self._size = (height, width)
@@ -186,7 +188,9 @@ class HumanoidEnv(gym.Env):
             if self.termination_fn is not None:
                 terminated = bool(self.termination_fn(obs[None], info["qpos"][None], info["qvel"][None])[0])
         self._fallen_steps = self._fallen_steps + 1 if info["qpos"][2] < FALLEN_HEIGHT else 0
-        truncated = self._steps >= self.max_episode_steps or 0 < self.reset_fallen_after <= self._fallen_steps
+        lain = 0 < self.reset_fallen_after <= self._fallen_steps
+        terminated = terminated or (lain and self.fallen_terminates)
+        truncated = self._steps >= self.max_episode_steps or (lain and not self.fallen_terminates)
         return obs, reward, terminated, truncated, info
 
     def render(self) -> np.ndarray | None:

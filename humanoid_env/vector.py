@@ -56,6 +56,7 @@ class VectorHumanoidEnv(VectorEnv):
         max_qvel: float = MAX_QVEL,
         action_mapping: str = DEFAULT_ACTION_MAPPING,
         reset_fallen_after: int = 0,
+        fallen_terminates: bool = False,
     ) -> None:
         if num_envs < 1:
             raise EnvError(f"num_envs must be >= 1, got {num_envs}")
@@ -72,6 +73,7 @@ class VectorHumanoidEnv(VectorEnv):
         self.termination_fn = termination
         self.max_episode_steps = int(max_episode_steps)
         self.reset_fallen_after = check_reset_fallen(reset_fallen_after)
+        self.fallen_terminates = bool(fallen_terminates)
         self.max_qvel = float(max_qvel)
         self.render_mode = None
         self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
@@ -165,7 +167,11 @@ class VectorHumanoidEnv(VectorEnv):
         self._fallen_steps = np.where(qpos[:, 2] < FALLEN_HEIGHT, self._fallen_steps + 1, 0)
         truncated = self._steps >= self.max_episode_steps
         if self.reset_fallen_after:
-            truncated |= self._fallen_steps >= self.reset_fallen_after
+            lain = self._fallen_steps >= self.reset_fallen_after
+            if self.fallen_terminates:
+                terminated |= lain
+            else:
+                truncated |= lain
         done = terminated | truncated
 
         self._obs, self._good_qpos, self._good_qvel = obs, qpos, qvel

@@ -22,6 +22,7 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
     ({"env": {"name": "atari"}}, "env.name"),
     ({"env": {"reset_fallen_s": -1.0}}, "env.reset_fallen_s"),
     ({"env": {"name": "toy", "reset_fallen_s": 1.0}}, "env.reset_fallen_s"),  # only the humanoid falls
+    ({"env": {"fallen_terminates": True}}, "env.fallen_terminates"),          # without reset_fallen_s
     ({"train": {"device": "tpu"}}, "train.device"),
     ({"train": {"lr": float("nan")}}, "train.lr"),
     ({"model": [1, 2]}, "model"),

@@ -150,12 +150,19 @@ def test_reset_fallen_after_truncates_lying_envs_only():
 
     env = VectorHumanoidEnv(2, num_threads=1, max_episode_steps=steps + 1, reset_fallen_after=k)
     env.reset(options=start)
-    truncs = np.stack([env.step(zero)[3] for _ in range(end + 1)])
-    assert not truncs[:, 0].any() and np.flatnonzero(truncs[:, 1]).tolist() == [end]
+    terms, truncs = map(np.stack, zip(*[env.step(zero)[2:4] for _ in range(end + 1)]))
+    assert not truncs[:, 0].any() and np.flatnonzero(truncs[:, 1]).tolist() == [end] and not terms.any()
+    env = VectorHumanoidEnv(2, num_threads=1, max_episode_steps=steps + 1, reset_fallen_after=k, fallen_terminates=True)
+    env.reset(options=start)
+    terms, truncs = map(np.stack, zip(*[env.step(zero)[2:4] for _ in range(end + 1)]))
+    assert not terms[:, 0].any() and np.flatnonzero(terms[:, 1]).tolist() == [end] and not truncs.any()
 
     single = HumanoidEnv(max_episode_steps=steps + 1, reset_fallen_after=k)
     single.reset(options={"qpos": qf[0], "qvel": vf[0]})
     assert [single.step(zero[0])[3] for _ in range(end + 1)].index(True) == end
+    single = HumanoidEnv(max_episode_steps=steps + 1, reset_fallen_after=k, fallen_terminates=True)
+    single.reset(options={"qpos": qf[0], "qvel": vf[0]})
+    assert [single.step(zero[0])[2] for _ in range(end + 1)].index(True) == end
 
 
 @pytest.mark.parametrize("bad", [-1, 1.5, True])
