@@ -126,6 +126,7 @@ class EnvConfig:
     name: str = _f("humanoid", _check(lambda v: v in ("humanoid", "toy"), "must be 'humanoid' or 'toy'"))
     motions: str = _f("synthetic")  # humanoid: a folder of clips or one clip .npz; toy: "synthetic" (all demos) or demo names
     fall_prob: float = _f(0.2, PROB)
+    stand_prob: float = _f(0.0, PROB)  # humanoid: share of training episodes that start from the standing rest pose
     max_episode_steps: int = _f(300, _range(1, 10**7))
     action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
     # humanoid: truncate a training episode (not terminate: no reward or objective changes) once the pelvis has
@@ -274,6 +275,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
                           f"got {cfg.agent.batch_size}")
     if cfg.env.reset_fallen_s and cfg.env.name != "humanoid":
         raise ConfigError(f"env.reset_fallen_s: only the humanoid falls; set it to 0 for env.name {cfg.env.name!r}")
+    if cfg.env.fall_prob + cfg.env.stand_prob > 1.0:
+        raise ConfigError(f"env.stand_prob: env.fall_prob + env.stand_prob must be <= 1, got "
+                          f"{cfg.env.fall_prob} + {cfg.env.stand_prob}")
     if cfg.env.fallen_terminates and not cfg.env.reset_fallen_s:
         raise ConfigError("env.fallen_terminates: needs env.reset_fallen_s > 0 (how long fallen ends an episode)")
     if cfg.env.npmp is not None and (cfg.algorithm != "td3" or cfg.agent.reward.imitation):

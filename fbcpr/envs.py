@@ -118,7 +118,7 @@ def _humanoid(cfg: EnvConfig, num_envs: int, threads: int | None = None) -> EnvB
         return lambda next_obs, qpos, qvel: fn(next_obs, None, qpos, qvel)
 
     return EnvBundle(
-        env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib), max_episode_steps=cfg.max_episode_steps,
+        env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib, stand_prob=cfg.stand_prob), max_episode_steps=cfg.max_episode_steps,
                               action_mapping=cfg.action_mapping, num_threads=threads,
                               reset_fallen_after=reset_fallen_steps(cfg.reset_fallen_s),
                               fallen_terminates=cfg.fallen_terminates),

@@ -224,6 +224,11 @@ def test_mocap_and_mixture_inits():
     assert (make_init(1.0).sample(rng, 4)[0][:, 3] < 0.999).all()  # all falls: tilted roots
     with pytest.raises(ValueError, match="fall_prob"):
         make_init(1.5)
+    qpos, _ = make_init(0.2, mocap=_Library(), stand_prob=0.5).sample(rng, 400)
+    standing = np.all(np.abs(qpos[:, 3:7] - [1, 0, 0, 0]) < 1e-9, axis=1) & (qpos[:, 0] < 5)  # upright root, not MoCap
+    assert 0.4 < standing.mean() < 0.6 and 0.2 < (qpos[:, 0] >= 5).mean() < 0.4
+    with pytest.raises(ValueError, match="stand_prob"):
+        make_init(0.5, stand_prob=0.6)
     with pytest.raises(ValueError, match="weight"):
         MixtureInit([DefaultInit()], [-1.0])
 
