@@ -275,7 +275,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
                           f"got {cfg.agent.batch_size}")
     if cfg.env.reset_fallen_s and cfg.env.name != "humanoid":
         raise ConfigError(f"env.reset_fallen_s: only the humanoid falls; set it to 0 for env.name {cfg.env.name!r}")
-    if cfg.env.fall_prob + cfg.env.stand_prob > 1.0:
+    if cfg.env.fall_prob + cfg.env.stand_prob > 1.0 + 1e-9:
         raise ConfigError(f"env.stand_prob: env.fall_prob + env.stand_prob must be <= 1, got "
                           f"{cfg.env.fall_prob} + {cfg.env.stand_prob}")
     if cfg.env.fallen_terminates and not cfg.env.reset_fallen_s:

@@ -40,7 +40,7 @@ FALLEN_HEIGHT = 0.6
 
 
 def check_reset_fallen(steps: int) -> int:
-    """Validate `reset_fallen_after` (env steps spent fallen before the episode is truncated; 0: never)."""
+    """Validate `reset_fallen_after` (env steps spent fallen before the episode ends; 0: never)."""
     if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool) or steps < 0:
         raise EnvError(f"reset_fallen_after must be an int >= 0 (env steps; 0 = off), got {steps!r}")
     return int(steps)
