@@ -20,6 +20,7 @@ import numpy as np
 
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.upright import pelvis_heights, seconds_upright, upright
+from humanoid_env.model import CONTROL_HZ
 
 
 def probe_prompts(agent: Any, clip: str | None, random_z: int, seed: int) -> dict[str, np.ndarray]:
@@ -44,6 +45,9 @@ def main() -> None:
     ap.add_argument("--probe", action="store_true", help="also other prompts than the stand reward (checkpoints only)")
     ap.add_argument("--clip", help="with --probe: a clip .npz whose imitation z is probed")
     ap.add_argument("--random-z", type=int, default=2, help="with --probe: how many random unit z's")
+    ap.add_argument("--push", type=float, nargs=2, metavar=("ANGLE", "VEL"),
+                    help="also from pushed standing starts: joint-angle noise (rad) and velocity noise of DefaultInit, "
+                         "where the zero action falls too")
     args = ap.parse_args()
     from humanoid_env.inits import DefaultInit
 
@@ -53,6 +57,10 @@ def main() -> None:
         res = upright(agent, args.episodes, args.steps, args.seed)
         print(f"{spec:60s} {res.median_seconds:9.2f} {res.seconds.mean():8.2f} ± {res.seconds.std():4.2f} "
               f"{res.share_got_up:7.2f}", flush=True)
+        if args.push:
+            sec = seconds_upright(pelvis_heights(agent, DefaultInit(*args.push), args.episodes, args.steps, args.seed))
+            print(f"{'  pushed start':60s} {np.median(sec):9.2f} {sec.mean():8.2f} ± {sec.std():4.2f} "
+                  f"(10 s: {(sec >= args.steps / CONTROL_HZ).sum()}/{len(sec)})", flush=True)
         if not args.probe or spec in ("zero", "random"):
             continue
         for name, z in probe_prompts(agent, args.clip, args.random_z, args.seed).items():
