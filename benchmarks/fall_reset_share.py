@@ -29,7 +29,7 @@ def upright_share(library: MotionLibrary, seconds: float, sigma: float, fall_pro
     up = ended = 0
     try:
         for _ in range(steps):
-            _, _, term, trunc, info = env.step(np.clip(rng.normal(0.0, sigma, (envs, 69)), -1.0, 1.0))
+            _, _, term, trunc, info = env.step(rng.normal(0.0, sigma, (envs, 69)))  # the env clips to [-1, 1]
             up += int((info["final_qpos"][:, 2] > FALLEN_HEIGHT).sum())
             ended += int((term | trunc).sum())
     finally:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from fbcpr.evaluation.agents import make_agent
-from fbcpr.evaluation.upright import pelvis_heights, seconds_upright, upright
+from fbcpr.evaluation.upright import STAND_PROMPT, pelvis_heights, seconds_upright, upright
 from humanoid_env.model import CONTROL_HZ
 
 
@@ -34,6 +34,15 @@ def probe_prompts(agent: Any, clip: str | None, random_z: int, seed: int) -> dic
     for i in range(random_z):
         zs[f"random z {i}"] = agent.project_z(rng.standard_normal(agent.z_dim))
     return zs
+
+
+def print_row(label: str, agent: Any, init: Any, args: argparse.Namespace, prompt: str | np.ndarray = STAND_PROMPT,
+              whole: bool = False) -> None:
+    """One row: seconds upright of `agent` from `init` starts under `prompt`; `whole` adds how many episodes stayed
+    up to the end."""
+    sec = seconds_upright(pelvis_heights(agent, init, args.episodes, args.steps, args.seed, prompt))
+    end = f" (whole {args.steps / CONTROL_HZ:g} s: {(sec >= args.steps / CONTROL_HZ).sum()}/{len(sec)})" if whole else ""
+    print(f"{label:60s} {np.median(sec):9.2f} {sec.mean():8.2f} ± {sec.std():4.2f}{end}", flush=True)
 
 
 def main() -> None:
@@ -58,14 +67,11 @@ def main() -> None:
         print(f"{spec:60s} {res.median_seconds:9.2f} {res.seconds.mean():8.2f} ± {res.seconds.std():4.2f} "
               f"{res.share_got_up:7.2f}", flush=True)
         if args.push:
-            sec = seconds_upright(pelvis_heights(agent, DefaultInit(*args.push), args.episodes, args.steps, args.seed))
-            print(f"{'  pushed start':60s} {np.median(sec):9.2f} {sec.mean():8.2f} ± {sec.std():4.2f} "
-                  f"(10 s: {(sec >= args.steps / CONTROL_HZ).sum()}/{len(sec)})", flush=True)
+            print_row("  pushed start", agent, DefaultInit(*args.push), args, whole=True)
         if not args.probe or spec in ("zero", "random"):
             continue
         for name, z in probe_prompts(agent, args.clip, args.random_z, args.seed).items():
-            sec = seconds_upright(pelvis_heights(agent, DefaultInit(), args.episodes, args.steps, args.seed, z))
-            print(f"{'  z = ' + name:60s} {np.median(sec):9.2f} {sec.mean():8.2f} ± {sec.std():4.2f}", flush=True)
+            print_row("  z = " + name, agent, DefaultInit(), args, prompt=z)
 
 
 if __name__ == "__main__":

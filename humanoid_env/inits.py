@@ -157,6 +157,4 @@ def make_init(fall_prob: float, mocap: StateSource | None = None, stand_prob: fl
     if not 0.0 <= stand_prob <= 1.0 - fall_prob + 1e-9:
         raise EnvError(f"stand_prob must be in [0, 1 - fall_prob] = [0, {1.0 - fall_prob:g}], got {stand_prob}")
     base = MocapInit(mocap) if mocap is not None else DefaultInit()
-    if not stand_prob:
-        return MixtureInit([base, FallInit()], [1.0 - fall_prob, fall_prob])
     return MixtureInit([base, FallInit(), DefaultInit()], [max(0.0, 1.0 - fall_prob - stand_prob), fall_prob, stand_prob])
