@@ -39,6 +39,7 @@ from rich.text import Text
 
 from fbcpr.buffer import ReplayBuffer, transition_specs
 from fbcpr.checkpoint import (
+    REPLAY_FILE,
     CheckpointError,
     discard_checkpoint,
     latest_checkpoint,
@@ -150,6 +151,7 @@ class Trainer:
         # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands for
         self._carried: dict[str, np.ndarray] | None = None
         self._carried_weight = 0
+        self._updates_from = tc.warmup_steps  # env steps before the first update (later after a buffer-less resume)
         self._last_line = 0.0
         self.obs, info = b.env.reset(seed=seed)
         self.z = self._sample_rollout_z(tc.num_envs)
@@ -191,7 +193,7 @@ class Trainer:
                         if self._halt():
                             break
                     ready = self._agree()
-                    if self.env_steps >= tc.warmup_steps and ready >= self.cfg.agent.batch_size:
+                    if self.env_steps >= self._updates_from and ready >= self.cfg.agent.batch_size:
                         for _ in range(tc.updates_per_rollout):
                             if self._halt():
                                 break
@@ -500,6 +502,8 @@ class Trainer:
             self.next_ckpt, self.next_log, self.emd = _inf(meta["next_ckpt"]), meta["next_log"], meta["emd"]
             self.bundle.library.priorities = tensors["priorities"].numpy().copy()
             self._saved_at = self.env_steps
+            if not ckpt.has(REPLAY_FILE):  # every rank: all of them start on empty shards, and must agree to update
+                self._updates_from = self.env_steps + self.cfg.train.warmup_steps
             if not self.replicas.is_main:
                 self._fresh_shard()
                 return
@@ -531,7 +535,8 @@ class Trainer:
             lost = (f"its reward-inference sample ({len(self._carried['next_obs']):,} states) is carried over and "
                     "merged with the new transitions")
         self._notice(f"resume: {ckpt.path} has no replay buffer (train.save_buffer: false), so training continues "
-                     f"from an empty buffer; {lost}. Set train.save_buffer: true for an exact resume.")
+                     f"from an empty buffer, which the loaded policy refills for {self.cfg.train.warmup_steps:,} env "
+                     f"steps before updates go on; {lost}. Set train.save_buffer: true for an exact resume.")
 
     def _fresh_shard(self) -> None:
         """A resumed rank other than 0: new envs, random streams and latents, seeded from (seed + rank, env steps)

@@ -175,6 +175,22 @@ def test_resume_without_replay_buffer_keeps_the_reward_sample(tmp_path, capsys):
     assert len(load_checkpoint(again.run(max_env_steps=200)["checkpoint"]).reward_buffer()["next_obs"]) == 300
 
 
+def test_resume_without_replay_buffer_refills_before_updating(tmp_path):
+    cfg = dict(save_buffer=False, warmup_steps=80, updates_per_rollout=3)
+    first = Trainer(tiny_cfg(**cfg), tmp_path, progress=False).run(max_env_steps=160)
+    done = first["updates"]
+    assert done > 0
+    tr = Trainer(tiny_cfg(**cfg), tmp_path, resume=True, progress=False)
+    assert tr.run(max_env_steps=60)["updates"] == done          # the empty buffer refills from the loaded policy
+    assert len(tr.buffer) == 60
+    tr = Trainer(tiny_cfg(**cfg), tmp_path, resume=True, progress=False)  # stopped mid-refill: refill again
+    assert tr.run(max_env_steps=80)["updates"] == done + 3       # updates once 80 new env steps are in
+    with_buffer = Trainer(tiny_cfg(warmup_steps=80, updates_per_rollout=3), tmp_path / "kept", progress=False)
+    kept = with_buffer.run(max_env_steps=160)["updates"]
+    again = Trainer(tiny_cfg(warmup_steps=80, updates_per_rollout=3), tmp_path / "kept", resume=True, progress=False)
+    assert again.run(max_env_steps=20)["updates"] == kept + 3    # a saved buffer needs no refill
+
+
 def test_noop_resume_changes_nothing_on_disk_and_more_steps_continue(tmp_path):
     from fbcpr.cli.app import app
 
