@@ -73,14 +73,18 @@ def test_checkpoint_contents_and_reward_buffer(tmp_path):
 
 def test_sigint_writes_final_checkpoint(tmp_path):
     tr = Trainer(tiny_cfg(), tmp_path, progress=False)
-    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
-    timer.start()
-    summary = tr.run()
-    timer.join()
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # a background job starts with SIGINT ignored
+    try:
+        timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+        timer.start()
+        summary = tr.run()
+        timer.join()
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
+    finally:
+        signal.signal(signal.SIGINT, before)
     assert summary["interrupted"] and 0 < summary["env_steps"] < 100_000
     ck = load_checkpoint(summary["checkpoint"])
     assert ck.trainer_state()[1]["env_steps"] == summary["env_steps"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
 
 
 def test_replay_buffer_ring_and_memmap(tmp_path):
