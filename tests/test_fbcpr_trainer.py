@@ -71,17 +71,13 @@ def test_checkpoint_contents_and_reward_buffer(tmp_path):
     assert ck.model_config.obs_dim == pm.OBS_DIM
 
 
-def test_sigint_writes_final_checkpoint(tmp_path):
+def test_sigint_writes_final_checkpoint(tmp_path, default_sigint):
     tr = Trainer(tiny_cfg(), tmp_path, progress=False)
-    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # a background job starts with SIGINT ignored
-    try:
-        timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
-        timer.start()
-        summary = tr.run()
-        timer.join()
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
-    finally:
-        signal.signal(signal.SIGINT, before)
+    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    summary = tr.run()
+    timer.join()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
     assert summary["interrupted"] and 0 < summary["env_steps"] < 100_000
     ck = load_checkpoint(summary["checkpoint"])
     assert ck.trainer_state()[1]["env_steps"] == summary["env_steps"]

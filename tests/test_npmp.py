@@ -257,7 +257,7 @@ def test_latent_optimisation_fits_the_expert_actions(bc_data):
         optimise_latents(model, states, actions[:3], z0)
 
 
-def test_a_stop_signal_ends_distillation_with_a_checkpoint(bc_data, tmp_path):
+def test_a_stop_signal_ends_distillation_with_a_checkpoint(bc_data, tmp_path, default_sigint):
     import os
     import signal
 
@@ -265,13 +265,9 @@ def test_a_stop_signal_ends_distillation_with_a_checkpoint(bc_data, tmp_path):
         if step == 2:
             os.kill(os.getpid(), signal.SIGINT)
 
-    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # a background job starts with SIGINT ignored
-    try:
-        path, steps = distill(tmp_path, bc_data, npmp_config(preset="tiny"), steps=50, info={}, checkpoint_every=10,
-                              on_update=interrupt)
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
-    finally:
-        signal.signal(signal.SIGINT, before)
+    path, steps = distill(tmp_path, bc_data, npmp_config(preset="tiny"), steps=50, info={}, checkpoint_every=10,
+                          on_update=interrupt)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
     assert steps == 2 and path.name == "step_00000002" and latest_checkpoint(tmp_path / "checkpoints") == path
 
 
