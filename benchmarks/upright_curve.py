@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fbcpr.checkpoint import read_trainer_meta
+from fbcpr.checkpoint import list_checkpoints, read_trainer_meta
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.upright import pelvis_heights, seconds_upright
 from humanoid_env.model import CONTROL_HZ
@@ -24,7 +24,7 @@ from humanoid_env.model import CONTROL_HZ
 
 def checkpoints(run: Path, every: int) -> list[Path]:
     """Every `every`-th checkpoint folder of a run, oldest first, and always the newest."""
-    found = sorted(p for p in (run / "checkpoints").glob("step_*") if p.is_dir())
+    found = list_checkpoints(run / "checkpoints")
     if not found:
         raise SystemExit(f"{run}: no checkpoints/step_* folders")
     return sorted(set(found[::every]) | {found[-1]})

@@ -253,6 +253,11 @@ def swap_into_place(tmp: Path, path: Path) -> None:
     shutil.rmtree(backup, ignore_errors=True)
 
 
+def list_checkpoints(root: Path) -> list[Path]:
+    """A run's checkpoint folders (`root/step_*`), oldest first: the zero-padded step count sorts by name."""
+    return sorted(p for p in root.glob("step_*") if p.is_dir())
+
+
 def latest_checkpoint(root: Path) -> Path:
     """The checkpoint that `root/latest` names; CheckpointError naming the pointer when it is missing, empty, or
     points anywhere but a sibling checkpoint folder (a loop such as `.` or `latest` included)."""

@@ -43,6 +43,7 @@ from fbcpr.checkpoint import (
     CheckpointError,
     discard_checkpoint,
     latest_checkpoint,
+    list_checkpoints,
     load_checkpoint,
     load_state_strict,
     read_trainer_meta,
@@ -707,7 +708,7 @@ def config_json(cfg: Config) -> str:
 def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Path]:
     """Checkpoints that retention removes: all but the last `keep_last`, sparing those at multiples of
     `keep_every` env steps (0: none spared)."""
-    steps = sorted(p for p in root.glob("step_*") if p.is_dir())[:-keep_last]
+    steps = list_checkpoints(root)[:-keep_last]
     return [p for p in steps if not (keep_every and int(p.name.split("_")[1]) % keep_every == 0)]
 
 
