@@ -4,7 +4,7 @@ Each row is one rollout from the default standing start (a tracking row starts f
 sampled every `--every` steps; each frame is labelled with its time and pelvis height.
 
     python benchmarks/contact_sheet.py pretrained --prompts reward:move-ego-0-0 reward:move-ego-0-2 goal:t_pose \\
-        track:data/clips/deepmimic/humanoid3d_walk.npz --out docs/img/pretrained_prompts.png
+        track:data/clips/deepmimic/walk.npz --out docs/img/pretrained_prompts.png
 """
 from __future__ import annotations
 
@@ -21,19 +21,21 @@ from humanoid_env.model import CONTROL_HZ
 TILE_W, TILE_H = 224, 168
 
 
-def prompt_rollout(bfm: BFM, spec: str, steps: int):
-    """`reward:NAME`, `goal:NAME` or `track:CLIP.npz` -> the rollout's Episode (with frames)."""
+def prompt_zs(bfm: BFM, spec: str, steps: int) -> tuple[np.ndarray, tuple | None]:
+    """`reward:NAME`, `goal:NAME` or `track:CLIP.npz` -> (z per step, start state or None for the default start).
+
+    Every prompt is resolved before any rollout, so a typo in the last one fails in seconds, not after minutes of
+    rendering the others."""
     kind, _, name = spec.partition(":")
     if kind == "track":
         from motions.clip import load_clip
 
         clip = load_clip(name)
-        zs = bfm.prompt.track(clip)[:steps]
-        return rollout(bfm, zs, start=(clip.qpos[0], clip.qvel[0]), video=True, label=spec)
+        return bfm.prompt.track(clip)[:steps], (clip.qpos[0], clip.qvel[0])
     if kind not in ("reward", "goal"):
         raise SystemExit(f"--prompts: {spec!r} must be reward:NAME, goal:NAME or track:CLIP.npz")
     z = bfm.prompt.reward(name) if kind == "reward" else bfm.prompt.goal(name)
-    return rollout(bfm, np.repeat(z[None], steps, 0), video=True, label=spec)
+    return np.repeat(z[None], steps, 0), None
 
 
 def main() -> None:
@@ -46,8 +48,9 @@ def main() -> None:
     args = ap.parse_args()
     bfm = BFM.load(args.checkpoint)
     rows = []
-    for spec in args.prompts:
-        ep = prompt_rollout(bfm, spec, args.steps)
+    prompts = {spec: prompt_zs(bfm, spec, args.steps) for spec in args.prompts}
+    for spec, (zs, start) in prompts.items():
+        ep = rollout(bfm, zs, start=start, video=True, label=spec)
         picks = range(0, len(ep.frames), args.every)
         tiles = []
         for t in picks:
