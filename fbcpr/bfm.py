@@ -21,12 +21,14 @@ from fbcpr.checkpoint import (
     CONFIG_FILE,
     MANIFEST_FILE,
     MODEL_FILE,
+    POINTERS,
     REWARD_FILE,
     REWARD_KEYS,
     Checkpoint,
     CheckpointError,
     latest_checkpoint,
     load_checkpoint,
+    pointed_checkpoint,
     save_checkpoint,
 )
 from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict
@@ -308,8 +310,9 @@ def pretrained_dir() -> Path:
 
 
 def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: str | Path | None = None) -> Path:
-    """A local checkpoint directory as is, `pretrained` (the shipped model, unless a local folder has that name),
-    or a Hub repo id downloaded into (or found in) the HF cache."""
+    """A local checkpoint directory as is (a run directory: its latest checkpoint; a `checkpoints/best` or `latest`
+    pointer: the folder it names), `pretrained` (the shipped model, unless a local folder has that name), or a Hub
+    repo id downloaded into (or found in) the HF cache."""
     path = Path(src).expanduser()
     try:
         exists = path.exists()
@@ -319,6 +322,8 @@ def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: 
     if str(src) == PRETRAINED_NAME and not exists:
         return pretrained_dir()
     if exists:
+        if path.is_file() and path.name in POINTERS:  # RUN/checkpoints/latest or .../best: the folder it names
+            return pointed_checkpoint(path.parent, path.name)
         if not path.is_dir():
             raise CheckpointError(f"{path}: not a checkpoint directory (expected a folder with {MODEL_FILE})")
         return _latest_in_run(path)

@@ -43,6 +43,8 @@ MODEL_FILE, CONFIG_FILE, MANIFEST_FILE = "model.safetensors", "config.yaml", "ma
 TRAINER_FILE, REWARD_FILE, REPLAY_FILE = "trainer_state.safetensors", "reward_buffer.safetensors", "replay_buffer.safetensors"
 REWARD_KEYS = ("next_obs", "qpos", "qvel")
 _META_KEY = "fbcpr_json"
+#: The pointer files a run's checkpoints folder may hold: each names one checkpoint folder beside it.
+POINTERS = ("latest", "best")
 
 
 class CheckpointError(FBCPRError, RuntimeError):
@@ -218,8 +220,10 @@ def discard_checkpoint(path: Path) -> None:
 
 def remove_stale_temporaries(root: Path) -> list[Path]:
     """Remove what killed saves and deletions left in a checkpoints folder (`.NAME.tmp-*`, `.NAME.deleting-*`,
-    `.latest.tmp`); `.NAME.previous` backups stay, as load_checkpoint falls back to them. Returns what went."""
-    stale = [p for p in root.glob(".*") if ".tmp-" in p.name or ".deleting-" in p.name or p.name == ".latest.tmp"]
+    `.latest.tmp`, `.best.tmp`); `.NAME.previous` backups stay, as load_checkpoint falls back to them. Returns what
+    went."""
+    pointer_tmps = {f".{p}.tmp" for p in POINTERS}
+    stale = [p for p in root.glob(".*") if ".tmp-" in p.name or ".deleting-" in p.name or p.name in pointer_tmps]
     for p in stale:
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
@@ -258,19 +262,32 @@ def list_checkpoints(root: Path) -> list[Path]:
     return sorted(p for p in root.glob("step_*") if p.is_dir())
 
 
-def latest_checkpoint(root: Path) -> Path:
-    """The checkpoint that `root/latest` names; CheckpointError naming the pointer when it is missing, empty, or
-    points anywhere but a sibling checkpoint folder (a loop such as `.` or `latest` included)."""
-    pointer = root / "latest"
+def pointed_checkpoint(root: Path, pointer: str = "latest") -> Path:
+    """The checkpoint that `root/<pointer>` names (`latest`, or `best` with `train.keep_best`); CheckpointError naming
+    the pointer when it is missing, empty, or points anywhere but a sibling checkpoint folder (a loop such as `.`
+    or a pointer's own name included)."""
+    file = root / pointer
     try:
-        name = pointer.read_text().strip()
+        name = file.read_text().strip()
     except FileNotFoundError:
-        raise CheckpointError(f"{pointer}: missing (no checkpoint to resume)") from None
+        raise CheckpointError(f"{file}: missing (no checkpoint to resume)") from None
     except (OSError, UnicodeDecodeError) as e:
-        raise CheckpointError(f"{pointer}: unreadable pointer ({e})") from None
-    if not name or name in (".", "..", "latest") or "/" in name or os.sep in name:
-        raise CheckpointError(f"{pointer}: must name a checkpoint folder beside it (e.g. step_0000100000), got {name!r}")
+        raise CheckpointError(f"{file}: unreadable pointer ({e})") from None
+    if not name or name in (".", "..", *POINTERS) or "/" in name or os.sep in name:
+        raise CheckpointError(f"{file}: must name a checkpoint folder beside it (e.g. step_0000100000), got {name!r}")
     return root / name
+
+
+def latest_checkpoint(root: Path) -> Path:
+    """The checkpoint `root/latest` names: what a resume continues from."""
+    return pointed_checkpoint(root, "latest")
+
+
+def write_pointer(root: Path, pointer: str, name: str) -> None:
+    """Point `root/<pointer>` at the checkpoint folder `name`, atomically: a crash leaves the old pointer or the new."""
+    tmp = root / f".{pointer}.tmp"
+    tmp.write_text(name)
+    os.replace(tmp, root / pointer)
 
 
 def read_manifest(file: Path) -> dict[str, Any]:

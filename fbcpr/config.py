@@ -159,6 +159,13 @@ class TrainConfig:
     priority_every: int = _f(1_000_000, NON_NEGATIVE)
     priority_max_clips: int = _f(256, _range(1, 10**6))
     eval_every: int = _f(0, NON_NEGATIVE)
+    # humanoid: each evaluation also measures the median seconds upright under the stand prompt over this many
+    # standing and pushed standing starts (eval/upright_s, eval/upright_pushed_s; fbcpr.evaluation.upright)
+    eval_upright: int = _f(0, _range(0, 4096))
+    # an evaluation metric (e.g. eval/upright_pushed_s) whose best value's checkpoint checkpoints/best names and
+    # retention spares: a policy that unlearns a skill later in the run keeps its best checkpoint
+    keep_best: str = _f("", _check(lambda v: v == "" or v.startswith("eval/"), "must be '' or an eval/ metric"))
+    keep_best_mode: str = _f("max", _check(lambda v: v in ("max", "min"), "must be 'max' or 'min'"))
     checkpoint_every: int = _f(1_000_000, NON_NEGATIVE)
     keep_checkpoints: int = _f(3, POSITIVE)
     keep_every: int = _f(0, NON_NEGATIVE)
@@ -280,6 +287,17 @@ def config_from_dict(data: dict[str, Any]) -> Config:
                           f"{cfg.env.fall_prob} + {cfg.env.stand_prob}")
     if cfg.env.fallen_terminates and not cfg.env.reset_fallen_s:
         raise ConfigError("env.fallen_terminates: needs env.reset_fallen_s > 0 (how long fallen ends an episode)")
+    tc = cfg.train
+    if tc.eval_upright and (cfg.env.name != "humanoid" or not tc.eval_every):
+        raise ConfigError("train.eval_upright: measures the humanoid at each evaluation; needs env.name humanoid and "
+                          "train.eval_every > 0")
+    if tc.eval_upright and get_method(cfg.algorithm).promptable and not tc.reward_buffer_size:
+        raise ConfigError("train.eval_upright: prompting the stand reward needs a reward-inference sample; set "
+                          "train.reward_buffer_size > 0")
+    if tc.keep_best and not tc.eval_every:
+        raise ConfigError(f"train.keep_best: {tc.keep_best!r} comes from evaluations; set train.eval_every > 0")
+    if tc.keep_best.startswith("eval/upright") and not tc.eval_upright:
+        raise ConfigError(f"train.keep_best: {tc.keep_best!r} is logged only with train.eval_upright > 0")
     if cfg.env.npmp is not None and (cfg.algorithm != "td3" or cfg.agent.reward.imitation):
         raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
                           "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")

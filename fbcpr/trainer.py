@@ -49,6 +49,7 @@ from fbcpr.checkpoint import (
     read_trainer_meta,
     remove_stale_temporaries,
     save_checkpoint,
+    write_pointer,
 )
 from fbcpr import distributed
 from fbcpr.config import Config, ConfigError, TrainConfig
@@ -149,6 +150,8 @@ class Trainer:
         self._agreed_stop = False  # under torchrun: the stop decision every rank took together at the last phase end
         self._deadline = math.inf  # time.monotonic() at which run() stops (its `deadline`)
         self._saved_at: int | None = None  # env steps of the checkpoint on disk (none yet)
+        # train.keep_best (rank 0): the best value of the metric so far and the checkpoint folder it was measured at
+        self.best: tuple[float, str] | None = None
         # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands for
         self._carried: dict[str, np.ndarray] | None = None
         self._carried_weight = 0
@@ -292,19 +295,37 @@ class Trainer:
                 self._log_line(stop_at, fps)
             while self.next_log <= self.env_steps:
                 self.next_log += tc.log_every
-        if self.env_steps >= self.next_ckpt:
+        new_best = evaluated and self._new_best(extra)
+        if self.env_steps >= self.next_ckpt or new_best:
             while self.next_ckpt <= self.env_steps:  # advanced first: the checkpoint records the next one
                 self.next_ckpt += tc.checkpoint_every
             self.save()
+
+    def _new_best(self, metrics: dict[str, float]) -> bool:
+        """Whether this evaluation beat the best `train.keep_best` value so far (then it becomes the best, at this
+        step's checkpoint). Rank 0 alone evaluates the custom hooks, so it decides for every rank."""
+        tc = self.cfg.train
+        if not tc.keep_best:
+            return False
+        value = metrics.get(tc.keep_best, math.nan)
+        better = math.isfinite(value) and (self.best is None or (value > self.best[0] if tc.keep_best_mode == "max"
+                                                                 else value < self.best[0]))
+        if not self.replicas.sum(np.array([float(better and self.replicas.is_main)]))[0]:
+            return False
+        if self.replicas.is_main:
+            self.best = (value, self._checkpoint_path().name)
+            self._notice(f"new best {tc.keep_best} {value:.4g} at {self.env_steps:,} env steps: checkpoints/best "
+                         f"names {self.best[1]}")
+        return True
 
     def evaluate(self, refresh_priorities: bool = False) -> dict[str, float]:
         """Track the clips (tracking EMD / success), optionally refresh priorities, plus the custom eval hook."""
         tc, r = self.cfg.train, self.replicas
         custom = self.custom_eval if r.is_main else None  # the custom hook runs once, on rank 0
-        if not self.agent.z_dim:  # a single-task agent has no tracking prompt: only the custom hook
-            return {f"eval/{k}": float(v) for k, v in custom(self.agent).items()} if custom else {}
+        out = self._upright_eval() if tc.eval_upright and r.is_main else {}
+        if not self.agent.z_dim:  # a single-task agent has no tracking prompt: only the hooks
+            return {**out, **({f"eval/{k}": float(v) for k, v in custom(self.agent).items()} if custom else {})}
         rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
-        out: dict[str, float] = {}
         failed = False
         try:  # under torchrun each rank tracks its share of the clips
             scores = tracking_scores(self.agent.model, self.bundle, self.cfg.agent.seq_length, tc.priority_max_clips,
@@ -318,7 +339,7 @@ class Trainer:
             return {}
         if scores:
             self.emd.update({name: e for name, (e, _) in scores.items()})
-            out = {"eval/tracking_emd": float(np.mean([e for e, _ in scores.values()])),
+            out |= {"eval/tracking_emd": float(np.mean([e for e, _ in scores.values()])),
                    "eval/tracking_success": float(np.mean([s for _, s in scores.values()]))}
             if refresh_priorities:
                 fill = float(np.median(list(self.emd.values())))
@@ -326,6 +347,16 @@ class Trainer:
         if custom is not None:
             out.update({f"eval/{k}": float(v) for k, v in custom(self.agent).items()})
         return out
+
+    def _upright_eval(self) -> dict[str, float]:
+        """`train.eval_upright`: the policy as it is now, prompted like a checkpoint would be (a BFM on the stand
+        reward, inferred from the reward-inference sample; a single-task agent on its own task)."""
+        from fbcpr.evaluation.agents import live_agent
+        from fbcpr.evaluation.upright import EPISODE_STEPS, upright_medians
+
+        agent = live_agent(self.agent.model, self.cfg, self._reward_sample()[0])
+        steps = min(self.cfg.env.max_episode_steps, EPISODE_STEPS)  # 10 s, or a whole training episode if shorter
+        return {f"eval/{k}": v for k, v in upright_medians(agent, self.cfg.train.eval_upright, steps).items()}
 
     def _gather_scores(self, scores: dict[str, tuple[float, bool]] | None,
                        failed: bool) -> dict[str, tuple[float, bool]] | None:
@@ -406,17 +437,20 @@ class Trainer:
             "python_rng": [py_state[0], list(py_state[1]), py_state[2]],
             "buffer": {"size": len(self.buffer), "pos": self.buffer.pos},
             "env_rng": self.bundle.env.np_random.bit_generator.state,
+            "best": None if self.best is None else {"metric": tc.keep_best, "mode": tc.keep_best_mode,
+                                                    "value": self.best[0], "checkpoint": self.best[1]},
         })
         reward, meta["reward_represents"] = self._reward_sample()
         replay = self.buffer.state() if tc.save_buffer else None
         save_checkpoint(path, self.agent.model, self.cfg, trainer_state=(tensors, meta), reward_buffer=reward,
                         replay_buffer=replay)
-        tmp = root / ".latest.tmp"
-        tmp.write_text(path.name)
-        os.replace(tmp, root / "latest")
+        write_pointer(root, "latest", path.name)
+        if self.best is not None and self.best[1] == path.name:
+            write_pointer(root, "best", path.name)  # before retention, which may remove the previous best
         self._saved_at = self.env_steps
+        spared = {path.name, self.best[1] if self.best is not None else ""}
         for p in prunable_checkpoints(root, tc.keep_checkpoints, tc.keep_every):
-            if p != path:
+            if p.name not in spared:
                 discard_checkpoint(p)
         return path
 
@@ -501,6 +535,9 @@ class Trainer:
             self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
             self.next_priority, self.next_eval = _inf(meta["next_priority"]), _inf(meta["next_eval"])
             self.next_ckpt, self.next_log, self.emd = _inf(meta["next_ckpt"]), meta["next_log"], meta["emd"]
+            best = meta.get("best")
+            if best is not None and best["metric"] == self.cfg.train.keep_best and best["mode"] == self.cfg.train.keep_best_mode:
+                self.best = (float(best["value"]), str(best["checkpoint"]))
             self.bundle.library.priorities = tensors["priorities"].numpy().copy()
             self._saved_at = self.env_steps
             if not ckpt.has(REPLAY_FILE):  # every rank: all of them start on empty shards, and must agree to update

@@ -26,6 +26,13 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
     ({"env": {"fall_prob": 0.5, "stand_prob": 0.6}}, "env.stand_prob"),      # probabilities beyond 1
     ({"train": {"device": "tpu"}}, "train.device"),
     ({"train": {"lr": float("nan")}}, "train.lr"),
+    ({"env": {"name": "toy"}, "train": {"eval_every": 10, "eval_upright": 4}}, "train.eval_upright"),  # no humanoid
+    ({"train": {"eval_upright": 4}}, "train.eval_upright"),                                  # never evaluated
+    ({"train": {"eval_every": 10, "eval_upright": 4, "reward_buffer_size": 0}}, "train.eval_upright"),  # no prompt
+    ({"train": {"eval_every": 10, "keep_best": "upright_s"}}, "train.keep_best"),            # not an eval/ metric
+    ({"train": {"keep_best": "eval/tracking_emd"}}, "train.keep_best"),                     # never evaluated
+    ({"train": {"eval_every": 10, "keep_best": "eval/upright_s"}}, "train.keep_best"),       # never measured
+    ({"train": {"eval_every": 10, "keep_best": "eval/x", "keep_best_mode": "top"}}, "train.keep_best_mode"),
     ({"model": [1, 2]}, "model"),
 ])
 def test_errors_name_the_key(data, key):

@@ -85,12 +85,12 @@ class SingleTaskAgent(_Floor):
     """A trained single-task policy (any non-prompt-able method of `fbcpr.methods`): it acts without z, so every
     prompt returns an empty one; `task` and `imitation` say what it was trained on (its own evaluation)."""
 
-    def __init__(self, checkpoint: Any, name: str) -> None:
-        self.model, self.name = checkpoint.model, name
-        reward = checkpoint.config.agent.reward
+    def __init__(self, model: Any, config: Any, name: str) -> None:
+        self.model, self.name = model, name
+        reward = config.agent.reward
         self.task: str | None = reward.task
         self.imitation: str | None = reward.imitation
-        self.action_mapping: str = checkpoint.config.env.action_mapping
+        self.action_mapping: str = config.env.action_mapping
 
     def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> np.ndarray:
         arr = _check_obs(obs, "act").reshape(-1, OBS_DIM)
@@ -121,7 +121,18 @@ def make_agent(spec: str, seed: int = 0, device: str = "cpu") -> Agent:
     ckpt = load_checkpoint(path, device)
     if get_method(ckpt.algorithm).promptable:
         return BFM(ckpt.model, ckpt.config, source=spec, checkpoint=ckpt)
-    return SingleTaskAgent(ckpt, spec)
+    return SingleTaskAgent(ckpt.model, ckpt.config, spec)
+
+
+def live_agent(model: Any, config: Any, reward_buffer: dict[str, np.ndarray] | None) -> Agent:
+    """The agent of a model still in training, as `make_agent` would give it from a checkpoint of the run: a BFM
+    prompted through `reward_buffer` (the run's reward-inference sample), or a single-task agent on its task."""
+    from fbcpr import BFM
+    from fbcpr.methods import get_method
+
+    if get_method(config.algorithm).promptable:
+        return BFM(model, config, reward_buffer=reward_buffer, source="training")
+    return SingleTaskAgent(model, config, "training")
 
 
 def load_tracker(spec: str, device: str = "cpu") -> Agent:

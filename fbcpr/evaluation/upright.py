@@ -17,6 +17,9 @@ from humanoid_env.model import CONTROL_HZ
 
 FALLEN, STANDING = FALLEN_HEIGHT, 0.8
 STAND_PROMPT = "move-ego-0-0"
+EPISODE_STEPS = 10 * CONTROL_HZ  # 10 s
+#: a pushed standing start (`DefaultInit` joint-angle noise in rad, velocity noise) that topples the zero action
+PUSH = (0.1, 0.3)
 
 
 @dataclass
@@ -61,7 +64,17 @@ def seconds_upright(heights: np.ndarray) -> np.ndarray:
     return np.where(fallen.any(0), fallen.argmax(0), heights.shape[0]) / CONTROL_HZ
 
 
-def upright(agent: Any, episodes: int = 16, steps: int = 300, seed: int = 0) -> Upright:
+def upright_medians(agent: Any, episodes: int, steps: int = EPISODE_STEPS, seed: int = 0) -> dict[str, float]:
+    """What a training run logs at each evaluation (`train.eval_upright`): median seconds upright under the stand
+    prompt from standing starts (`upright_s`, which the zero action holds) and from pushed ones (`upright_pushed_s`,
+    where it falls), the same starts every time."""
+    from humanoid_env.inits import DefaultInit
+
+    return {key: float(np.median(seconds_upright(pelvis_heights(agent, init, episodes, steps, seed))))
+            for key, init in (("upright_s", DefaultInit()), ("upright_pushed_s", DefaultInit(*PUSH)))}
+
+
+def upright(agent: Any, episodes: int = 16, steps: int = EPISODE_STEPS, seed: int = 0) -> Upright:
     """Both measures for one agent (a BFM or a floor baseline), `episodes` each, seeded."""
     from humanoid_env.inits import DefaultInit, FallInit
 

@@ -13,7 +13,6 @@ Steps past an episode's end repeat its last frame and are masked out of the loss
 """
 from __future__ import annotations
 
-import os
 import signal
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -23,7 +22,7 @@ from typing import Any, Callable
 import torch
 from torch import Tensor
 
-from fbcpr.checkpoint import CheckpointError, discard_checkpoint, latest_checkpoint
+from fbcpr.checkpoint import CheckpointError, discard_checkpoint, latest_checkpoint, write_pointer
 from fbcpr.npmp.checkpoint import load_npmp, save_npmp
 from fbcpr.npmp.config import NPMPConfig
 from fbcpr.npmp.data import ExpertData
@@ -168,9 +167,7 @@ def _save(root: Path, distiller: Distiller, info: dict[str, Any]) -> Path:
     previous = latest_checkpoint(root) if (root / "latest").exists() else None
     path = save_npmp(root / _step_name(distiller.steps), distiller.model, {**info, "steps": distiller.steps},
                      distiller.state())
-    tmp = root / ".latest.tmp"
-    tmp.write_text(path.name)
-    os.replace(tmp, root / "latest")
+    write_pointer(root, "latest", path.name)
     if previous is not None and previous != path and previous.exists():
         discard_checkpoint(previous)
     return path

@@ -1,0 +1,109 @@
+"""Evaluations during training: the humanoid's upright time (`train.eval_upright`) and the checkpoint of the best
+evaluation (`train.keep_best`), which retention spares and a resume remembers."""
+import shutil
+
+import pytest
+import torch
+
+from fbcpr.bfm import resolve_checkpoint
+from fbcpr.checkpoint import CheckpointError, read_trainer_meta
+from fbcpr.config import config_from_dict
+from fbcpr.evaluation.agents import make_agent
+from fbcpr.trainer import Trainer
+from motions import synthetic
+from motions.clip import save_clip
+
+torch.set_num_threads(1)
+
+
+def toy_cfg(**train):
+    return config_from_dict({
+        "algorithm": "td3",
+        "model": {"hidden_dim": 16, "hidden_layers": 1},
+        "agent": {"batch_size": 32, "reward": {"task": "reach-top-right"}},
+        "env": {"name": "toy", "max_episode_steps": 30},
+        "train": {"total_env_steps": 100_000, "num_envs": 4, "warmup_steps": 40, "rollout_steps": 40,
+                  "updates_per_rollout": 1, "buffer_capacity": 1000, "priority_every": 0, "eval_every": 40,
+                  "checkpoint_every": 0, "keep_checkpoints": 1, "log_every": 40, "reward_buffer_size": 0,
+                  "save_buffer": True, "torch_threads": 1, "keep_best": "eval/score", **train},
+    })
+
+
+def scripted(values):
+    """An evaluation hook that reports `values` in turn, one per evaluation."""
+    it = iter(values)
+    return lambda agent: {"score": next(it)}
+
+
+def logged(run, key):
+    rows = [line.split(",") for line in (run / "metrics.csv").read_text().splitlines()[1:]]
+    return [(int(step), float(v)) for k, v, step in rows if k == key]
+
+
+def best_of(run):
+    folder = resolve_checkpoint(run / "checkpoints" / "best")
+    return folder.name, read_trainer_meta(folder)["best"]
+
+
+@pytest.mark.parametrize("mode, best_at", [("max", 1), ("min", 3)])
+def test_best_checkpoint_is_the_best_evaluation_and_survives_retention(tmp_path, mode, best_at):
+    values = [1.0, 3.0, 2.0, 0.5, 2.5]
+    Trainer(toy_cfg(keep_best_mode=mode), tmp_path, evaluate=scripted(values), progress=False).run(max_env_steps=200)
+    scores = logged(tmp_path, "eval/score")
+    assert [v for _, v in scores] == values
+    name, best = best_of(tmp_path)
+    assert name == f"step_{scores[best_at][0]:010d}"
+    assert best == {"metric": "eval/score", "mode": mode, "value": values[best_at], "checkpoint": name}
+    # keep_checkpoints: 1 removes every other checkpoint, the best one stays beside the latest
+    kept = sorted(p.name for p in (tmp_path / "checkpoints").glob("step_*"))
+    assert kept == sorted({name, (tmp_path / "checkpoints" / "latest").read_text()})
+    assert make_agent(str(tmp_path / "checkpoints" / "best")).task == "reach-top-right"
+
+
+def test_a_resume_remembers_the_best_value(tmp_path):
+    Trainer(toy_cfg(), tmp_path / "a", evaluate=scripted([1.0, 3.0]), progress=False).run(max_env_steps=80)
+    first, _ = best_of(tmp_path / "a")
+    Trainer(toy_cfg(), tmp_path / "a", resume=True, evaluate=scripted([2.9]), progress=False).run(max_env_steps=40)
+    assert best_of(tmp_path / "a")[0] == first  # 2.9 after the resume does not beat 3.0 from before it
+    Trainer(toy_cfg(), tmp_path / "a", resume=True, evaluate=scripted([3.5]), progress=False).run(max_env_steps=40)
+    name, best = best_of(tmp_path / "a")
+    assert name != first and best["value"] == 3.5
+    shutil.rmtree(tmp_path / "a" / "checkpoints" / name)  # a lost best folder is an error, not a silent fallback
+    with pytest.raises(CheckpointError, match=name):
+        make_agent(str(tmp_path / "a" / "checkpoints" / "best"))
+
+
+@pytest.fixture(scope="module")
+def clips(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("clips")
+    for clip in (synthetic.stand(1.0), synthetic.tpose(1.0)):
+        save_clip(clip, folder / f"{clip.name}.npz")
+    return folder
+
+
+@pytest.mark.parametrize("algorithm", ["td3", "fb_cpr"])
+def test_humanoid_runs_log_upright_seconds_and_keep_the_best(tmp_path, clips, algorithm):
+    steps = 6  # short episodes: the measure covers a whole training episode when it is shorter than 10 s
+    data = {
+        "algorithm": algorithm,
+        "agent": {"batch_size": 8, **({"reward": {"task": "move-ego-0-0"}} if algorithm == "td3" else {})},
+        "env": {"name": "humanoid", "motions": str(clips), "max_episode_steps": steps},
+        "train": {"num_envs": 2, "total_env_steps": 24, "warmup_steps": 4, "rollout_steps": 4,
+                  "updates_per_rollout": 1, "buffer_capacity": 100, "priority_every": 0, "eval_every": 8,
+                  "eval_upright": 2, "keep_best": "eval/upright_pushed_s", "checkpoint_every": 0,
+                  "log_every": 4, "reward_buffer_size": 8, "torch_threads": 1},
+    }
+    if algorithm == "td3":
+        data["model"] = {"hidden_dim": 16, "hidden_layers": 1}
+    else:
+        data["model"] = {"preset": "tiny"}
+        data["agent"]["seq_length"] = 4
+    Trainer(config_from_dict(data), tmp_path, progress=False).run()
+    for key in ("eval/upright_s", "eval/upright_pushed_s"):
+        values = [v for _, v in logged(tmp_path, key)]
+        assert len(values) == 3 and all(0 < v <= steps / 30 for v in values), (key, values)
+    # a fresh start stands the 6 steps: the first evaluation is the best, and later ties do not replace it
+    pushed = logged(tmp_path, "eval/upright_pushed_s")
+    top = max(v for _, v in pushed)
+    name, best = best_of(tmp_path)
+    assert best["value"] == top and name == f"step_{next(s for s, v in pushed if v == top):010d}"
