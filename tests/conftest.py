@@ -15,3 +15,17 @@ def default_sigint():
     before = signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
     signal.signal(signal.SIGINT, before)
+
+
+@pytest.fixture(scope="session")
+def two_clips(tmp_path_factory):
+    """A clip folder as `fbcpr motions import` writes it, with two short synthetic clips (stand, t-pose): enough for
+    a humanoid run that needs MoCap starts and expert windows, without importing the synthetic library (it needs
+    scipy) in the run."""
+    from motions import synthetic
+    from motions.clip import save_clip
+
+    folder = tmp_path_factory.mktemp("clips")
+    for clip in (synthetic.stand(1.0), synthetic.tpose(1.0)):
+        save_clip(clip, folder / f"{clip.name}.npz")
+    return folder

@@ -10,8 +10,6 @@ from fbcpr.checkpoint import CheckpointError, read_trainer_meta
 from fbcpr.config import config_from_dict
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.trainer import Trainer
-from motions import synthetic
-from motions.clip import save_clip
 
 torch.set_num_threads(1)
 
@@ -73,21 +71,13 @@ def test_a_resume_remembers_the_best_value(tmp_path):
         make_agent(str(tmp_path / "a" / "checkpoints" / "best"))
 
 
-@pytest.fixture(scope="module")
-def clips(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("clips")
-    for clip in (synthetic.stand(1.0), synthetic.tpose(1.0)):
-        save_clip(clip, folder / f"{clip.name}.npz")
-    return folder
-
-
 @pytest.mark.parametrize("algorithm", ["td3", "fb_cpr"])
-def test_humanoid_runs_log_upright_seconds_and_keep_the_best(tmp_path, clips, algorithm):
+def test_humanoid_runs_log_upright_seconds_and_keep_the_best(tmp_path, two_clips, algorithm):
     steps = 6  # short episodes: the measure covers a whole training episode when it is shorter than 10 s
     data = {
         "algorithm": algorithm,
         "agent": {"batch_size": 8, **({"reward": {"task": "move-ego-0-0"}} if algorithm == "td3" else {})},
-        "env": {"name": "humanoid", "motions": str(clips), "max_episode_steps": steps},
+        "env": {"name": "humanoid", "motions": str(two_clips), "max_episode_steps": steps},
         "train": {"num_envs": 2, "total_env_steps": 24, "warmup_steps": 4, "rollout_steps": 4,
                   "updates_per_rollout": 1, "buffer_capacity": 100, "priority_every": 0, "eval_every": 8,
                   "eval_upright": 2, "keep_best": "eval/upright_pushed_s", "checkpoint_every": 0,

@@ -8,8 +8,6 @@ import numpy as np
 import pytest
 
 from fbcpr.evaluation import metrics
-from motions import synthetic
-from motions.clip import save_clip
 
 # Runs in a fresh interpreter with the packages the GPU image lacks made unimportable, recording every attempt;
 # trains twice through a priority refresh: without scipy (no EMD solver at all), then with it (assignment EMD).
@@ -51,22 +49,13 @@ NEVER = ("dm_control", "mink", "matplotlib")  # must not even be attempted on th
 OPTIONAL = ("ot", "tensorboard")             # tried lazily; a missing one degrades, it does not fail the run
 
 
-@pytest.fixture(scope="module")
-def clips(tmp_path_factory):
-    """A clip folder as `fbcpr motions import` writes it (the synthetic library itself needs scipy)."""
-    folder = tmp_path_factory.mktemp("clips")
-    for clip in (synthetic.stand(1.0), synthetic.tpose(1.0)):
-        save_clip(clip, folder / f"{clip.name}.npz")
-    return folder
-
-
 def metric_keys(run_dir):
     return {line.split(",")[0] for line in (run_dir / "metrics.csv").read_text().splitlines()[1:]}
 
 
-def test_training_path_needs_no_dm_control_pot_mink_tensorboard_scipy(tmp_path, clips):
+def test_training_path_needs_no_dm_control_pot_mink_tensorboard_scipy(tmp_path, two_clips):
     blocked = ",".join(NEVER + OPTIONAL + ("scipy",))
-    proc = subprocess.run([sys.executable, "-c", SCRIPT, str(tmp_path), blocked, str(clips)],
+    proc = subprocess.run([sys.executable, "-c", SCRIPT, str(tmp_path), blocked, str(two_clips)],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
