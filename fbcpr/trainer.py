@@ -150,6 +150,8 @@ class Trainer:
         self._agreed_stop = False  # under torchrun: the stop decision every rank took together at the last phase end
         self._deadline = math.inf  # time.monotonic() at which run() stops (its `deadline`)
         self._saved_at: int | None = None  # env steps of the checkpoint on disk (none yet)
+        self._wall_before = 0.0  # seconds of training before this run() call, summed over the run's sessions
+        self._run_t0: float | None = None  # time.perf_counter() at the start of the run() call in progress
         # train.keep_best (rank 0): the best value of the metric so far and the checkpoint folder it was measured at
         self.best: tuple[float, str] | None = None
         # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands for
@@ -188,6 +190,7 @@ class Trainer:
         stop_at = tc.total_env_steps if max_env_steps is None else min(tc.total_env_steps, self.env_steps + max_env_steps)
         handlers = self._install_signals()
         t0, steps0 = time.perf_counter(), self.env_steps
+        self._run_t0 = t0
         steps_per_phase = phase_steps(tc, self.replicas.world_size)
         try:
             with self._progress(stop_at) as (progress, task):
@@ -210,12 +213,19 @@ class Trainer:
             # a run that did nothing (a resume already at its step count) leaves its checkpoint as it is
             path = self.save() if self.env_steps != self._saved_at else self._checkpoint_path()
         finally:
+            self._wall_before, self._run_t0 = self.wall_s, None
             for sig, h in handlers.items():
                 signal.signal(sig, h)
             if self._writer:
                 self._writer.flush()
         return {"env_steps": self.env_steps, "updates": self.updates, "checkpoint": str(path),
                 "interrupted": self._stop, "seconds": time.perf_counter() - t0, **self.last_metrics}
+
+    @property
+    def wall_s(self) -> float:
+        """Seconds this run has trained, over all its sessions (resumes add to it): the x axis of wall-clock
+        learning curves (`wall_s` in metrics.csv)."""
+        return self._wall_before + (time.perf_counter() - self._run_t0 if self._run_t0 is not None else 0.0)
 
     def _halt(self) -> bool:
         """Stop at the next safe point: a stop signal came, or the run's deadline passed (under torchrun: the ranks
@@ -285,7 +295,8 @@ class Trainer:
             fps = (self.env_steps - steps0) / max(time.perf_counter() - t0, 1e-9)
             episodes, dropped = self.replicas.sum(np.array([self.episodes, self.buffer.dropped], dtype=np.float64))
             row = {"env_steps": self.env_steps, "updates": self.updates, "episodes": int(episodes),
-                   "env_steps_per_s": fps, **self.replicas.mean_metrics(self.last_metrics), **self._take_action_stats(),
+                   "env_steps_per_s": fps, "wall_s": self.wall_s, **self.replicas.mean_metrics(self.last_metrics),
+                   **self._take_action_stats(),
                    **extra}
             if dropped:
                 row["buffer_dropped"] = int(dropped)
@@ -432,7 +443,7 @@ class Trainer:
         meta.update({
             "env_steps": self.env_steps, "updates": self.updates, "episodes": episodes, "world_size": r.world_size,
             "next_priority": _num(self.next_priority), "next_eval": _num(self.next_eval),
-            "next_ckpt": _num(self.next_ckpt), "next_log": self.next_log, "emd": self.emd,
+            "next_ckpt": _num(self.next_ckpt), "next_log": self.next_log, "emd": self.emd, "wall_s": self.wall_s,
             "numpy_rng": self.rng.bit_generator.state, "numpy_global": _np_global_state(),
             "python_rng": [py_state[0], list(py_state[1]), py_state[2]],
             "buffer": {"size": len(self.buffer), "pos": self.buffer.pos},
@@ -535,6 +546,7 @@ class Trainer:
             self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
             self.next_priority, self.next_eval = _inf(meta["next_priority"]), _inf(meta["next_eval"])
             self.next_ckpt, self.next_log, self.emd = _inf(meta["next_ckpt"]), meta["next_log"], meta["emd"]
+            self._wall_before = float(meta.get("wall_s", 0.0))  # checkpoints from before it was recorded: 0
             best = meta.get("best")
             if best is not None and best["metric"] == self.cfg.train.keep_best and best["mode"] == self.cfg.train.keep_best_mode:
                 self.best = (float(best["value"]), str(best["checkpoint"]))

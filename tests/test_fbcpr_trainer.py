@@ -327,3 +327,23 @@ def test_a_deadline_is_kept_to_within_a_step(tmp_path):
     took = time.monotonic() - t0
     assert not summary["interrupted"] and summary["env_steps"] > 60
     assert took < 1.0 * 1.15 + 0.3, took           # the budget plus the final checkpoint, not whole chunks
+
+
+def test_wall_clock_of_training_adds_up_over_resumes(tmp_path):
+    import time
+
+    from fbcpr.checkpoint import latest_checkpoint, read_trainer_meta
+
+    def wall(run):
+        rows = [line.split(",") for line in (run / "metrics.csv").read_text().splitlines()[1:]]
+        return [float(v) for k, v, _ in rows if k == "wall_s"]
+
+    tr = Trainer(tiny_cfg(), tmp_path, progress=False)
+    tr.run(max_env_steps=80)
+    first = wall(tmp_path)
+    saved = read_trainer_meta(latest_checkpoint(tmp_path / "checkpoints"))["wall_s"]
+    assert len(first) >= 2 and 0 < first[0] and all(np.diff(first) > 0) and first[-1] <= saved
+    time.sleep(0.5)  # time between sessions is not training time
+    took = Trainer(tiny_cfg(), tmp_path, resume=True, progress=False).run(max_env_steps=40)["seconds"]
+    later = wall(tmp_path)[len(first):]
+    assert later and saved < later[0] and later[-1] <= saved + took

@@ -1,0 +1,89 @@
+"""Learning curves from what runs logged while training: chosen metrics.csv keys against env steps and wall-clock.
+
+One row of panels per metric: against env steps, and against hours of training (`wall_s`, summed over a run's
+resumes; runs logged before it existed get the env-step panel only). One line per run, so seeds or arms of a
+config compare at a glance, without evaluating any checkpoint again (`train.eval_upright` logs
+`eval/upright_s` and `eval/upright_pushed_s` during training; benchmarks/upright_curve.py measures checkpoints
+afterwards).
+
+    python benchmarks/training_curves.py runs/td3-stand-s3 runs/rfs-F --metrics eval/upright_s \
+        eval/upright_pushed_s --out docs/img/training_curves
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+from collections import defaultdict
+from pathlib import Path
+
+
+def read_metrics(run: Path) -> dict[str, dict[int, float]]:
+    """metrics.csv of a run as {key: {env_steps: value}} (a later row for the same step wins, as after a resume)."""
+    path = run / "metrics.csv"
+    if not path.is_file():
+        raise SystemExit(f"{run}: no metrics.csv (not a training run directory?)")
+    out: dict[str, dict[int, float]] = defaultdict(dict)
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            out[row["key"]][int(row["env_steps"])] = float(row["value"])
+    return out
+
+
+def series(logged: dict[str, dict[int, float]], key: str) -> list[tuple[int, float | None, float]]:
+    """(env steps, hours of training or None, value) for every logged value of `key`."""
+    wall = logged.get("wall_s", {})
+    return [(step, wall[step] / 3600 if step in wall else None, v) for step, v in sorted(logged.get(key, {}).items())]
+
+
+def plot(curves: dict[str, dict[str, list]], metrics: list[str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(metrics), 2, figsize=(11, 3.6 * len(metrics)), squeeze=False)
+    for (ax_steps, ax_wall), key in zip(axes, metrics):
+        for run, by_key in curves.items():
+            pts = by_key[key]
+            ax_steps.plot([p[0] for p in pts], [p[2] for p in pts], marker="o", markersize=3, label=run)
+            timed = [p for p in pts if p[1] is not None]
+            if timed:
+                ax_wall.plot([p[1] for p in timed], [p[2] for p in timed], marker="o", markersize=3, label=run)
+        ax_steps.set(xlabel="env steps", ylabel=key)
+        ax_wall.set(xlabel="hours of training (wall_s)", ylabel=key)
+        for ax in (ax_steps, ax_wall):
+            if ax.lines:
+                ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="+", type=Path, help="run directories (with metrics.csv)")
+    ap.add_argument("--metrics", nargs="+", required=True, help="metrics.csv keys, e.g. eval/upright_s reward")
+    ap.add_argument("--out", type=Path, default=Path("training_curves"), help="writes OUT.csv and OUT.png")
+    args = ap.parse_args()
+    curves = {}
+    for run in args.runs:
+        logged = read_metrics(run)
+        missing = [k for k in args.metrics if k not in logged]
+        if missing:
+            raise SystemExit(f"{run}/metrics.csv: no {', '.join(missing)} (logged: {', '.join(sorted(logged))})")
+        curves[run.name] = {k: series(logged, k) for k in args.metrics}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with open(args.out.with_suffix(".csv"), "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["run", "metric", "env_steps", "hours", "value"])
+        for run, by_key in curves.items():
+            for key, pts in by_key.items():
+                writer.writerows([run, key, step, "" if h is None else f"{h:.4f}", v] for step, h, v in pts)
+    plot(curves, args.metrics, args.out.with_suffix(".png"))
+    for run, by_key in curves.items():
+        for key, pts in by_key.items():
+            print(f"{run:24s} {key:24s} last {pts[-1][2]:.3g} at {pts[-1][0]:,} env steps, max {max(p[2] for p in pts):.3g}")
+    print(f"wrote {args.out.with_suffix('.csv')} and {args.out.with_suffix('.png')}")
+
+
+if __name__ == "__main__":
+    main()
