@@ -81,7 +81,8 @@ def main() -> None:
     plot(curves, args.metrics, args.out.with_suffix(".png"))
     for run, by_key in curves.items():
         for key, pts in by_key.items():
-            print(f"{run:24s} {key:24s} last {pts[-1][2]:.3g} at {pts[-1][0]:,} env steps, max {max(p[2] for p in pts):.3g}")
+            top = max(p[2] for p in pts)
+            print(f"{run:24s} {key:24s} last {pts[-1][2]:.3g} at {pts[-1][0]:,} env steps, max {top:.3g}")
     print(f"wrote {args.out.with_suffix('.csv')} and {args.out.with_suffix('.png')}")
 
 

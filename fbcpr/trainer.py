@@ -547,9 +547,9 @@ class Trainer:
             self.next_priority, self.next_eval = _inf(meta["next_priority"]), _inf(meta["next_eval"])
             self.next_ckpt, self.next_log, self.emd = _inf(meta["next_ckpt"]), meta["next_log"], meta["emd"]
             self._wall_before = float(meta.get("wall_s", 0.0))  # checkpoints from before it was recorded: 0
-            best = meta.get("best")
-            if best is not None and best["metric"] == self.cfg.train.keep_best and best["mode"] == self.cfg.train.keep_best_mode:
-                self.best = (float(best["value"]), str(best["checkpoint"]))
+            best, tc = meta.get("best"), self.cfg.train
+            if best is not None and (best["metric"], best["mode"]) == (tc.keep_best, tc.keep_best_mode):
+                self.best = (float(best["value"]), str(best["checkpoint"]))  # another metric starts a new record
             self.bundle.library.priorities = tensors["priorities"].numpy().copy()
             self._saved_at = self.env_steps
             if not ckpt.has(REPLAY_FILE):  # every rank: all of them start on empty shards, and must agree to update
@@ -628,7 +628,7 @@ class Trainer:
         """A yellow line on stderr that is also kept in the run's warnings.txt (rank 0's only)."""
         if not self.replicas.is_main:
             return
-        Console(stderr=True).print(f"[yellow]{message}[/]", highlight=False)
+        Console(stderr=True).print(f"[yellow]{message}[/]", highlight=False, soft_wrap=True)  # one line in logs
         with open(self.out / "warnings.txt", "a") as f:
             f.write(f"{self.env_steps}\tnotice\t{message}\n")
 

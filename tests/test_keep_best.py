@@ -66,6 +66,11 @@ def test_a_resume_remembers_the_best_value(tmp_path):
     Trainer(toy_cfg(), tmp_path / "a", resume=True, evaluate=scripted([3.5]), progress=False).run(max_env_steps=40)
     name, best = best_of(tmp_path / "a")
     assert name != first and best["value"] == 3.5
+    # the saved record is for another metric or direction: the resumed run starts a new one
+    Trainer(toy_cfg(keep_best_mode="min"), tmp_path / "a", resume=True, evaluate=scripted([5.0]),
+            progress=False).run(max_env_steps=40)
+    name, best = best_of(tmp_path / "a")
+    assert best["value"] == 5.0 and best["mode"] == "min"
     shutil.rmtree(tmp_path / "a" / "checkpoints" / name)  # a lost best folder is an error, not a silent fallback
     with pytest.raises(CheckpointError, match=name):
         make_agent(str(tmp_path / "a" / "checkpoints" / "best"))
