@@ -1,7 +1,7 @@
 """Learning curves from what runs logged while training: chosen metrics.csv keys against env steps and wall-clock.
 
 One row of panels per metric: against env steps, and against hours of training (`wall_s`, summed over a run's
-resumes; runs logged before it existed get the env-step panel only). One line per run, so seeds or arms of a
+resumes; runs logged before it existed are drawn against env steps only). One line per run, so seeds or arms of a
 config compare at a glance, without evaluating any checkpoint again (`train.eval_upright` logs
 `eval/upright_s` and `eval/upright_pushed_s` during training; benchmarks/upright_curve.py measures checkpoints
 afterwards).
@@ -41,19 +41,20 @@ def plot(curves: dict[str, dict[str, list]], metrics: list[str], path: Path) -> 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(len(metrics), 2, figsize=(11, 3.6 * len(metrics)), squeeze=False)
-    for (ax_steps, ax_wall), key in zip(axes, metrics):
+    timed = any(p[1] is not None for by_key in curves.values() for pts in by_key.values() for p in pts)
+    fig, axes = plt.subplots(len(metrics), 1 + timed, figsize=(5.5 * (1 + timed), 3.6 * len(metrics)), squeeze=False)
+    for row, key in zip(axes, metrics):
         for run, by_key in curves.items():
             pts = by_key[key]
-            ax_steps.plot([p[0] for p in pts], [p[2] for p in pts], marker="o", markersize=3, label=run)
-            timed = [p for p in pts if p[1] is not None]
+            row[0].plot([p[0] for p in pts], [p[2] for p in pts], marker="o", markersize=3, label=run)
             if timed:
-                ax_wall.plot([p[1] for p in timed], [p[2] for p in timed], marker="o", markersize=3, label=run)
-        ax_steps.set(xlabel="env steps", ylabel=key)
-        ax_wall.set(xlabel="hours of training (wall_s)", ylabel=key)
-        for ax in (ax_steps, ax_wall):
-            if ax.lines:
-                ax.legend(fontsize=7)
+                mine = [p for p in pts if p[1] is not None]
+                row[1].plot([p[1] for p in mine], [p[2] for p in mine], marker="o", markersize=3, label=run)
+        row[0].set(xlabel="env steps", ylabel=key)
+        if timed:
+            row[1].set(xlabel="hours of training (wall_s)", ylabel=key)
+        for ax in row:
+            ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
