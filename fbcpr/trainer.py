@@ -330,7 +330,8 @@ class Trainer:
         return True
 
     def evaluate(self, refresh_priorities: bool = False) -> dict[str, float]:
-        """Track the clips (tracking EMD / success), optionally refresh priorities, plus the custom eval hook."""
+        """Track the clips (tracking EMD / success), optionally refresh priorities, plus the upright measures
+        (`train.eval_upright`) and the custom eval hook."""
         tc, r = self.cfg.train, self.replicas
         custom = self.custom_eval if r.is_main else None  # the custom hook runs once, on rank 0
         out = self._upright_eval() if tc.eval_upright and r.is_main else {}
@@ -351,7 +352,7 @@ class Trainer:
         if scores:
             self.emd.update({name: e for name, (e, _) in scores.items()})
             out |= {"eval/tracking_emd": float(np.mean([e for e, _ in scores.values()])),
-                   "eval/tracking_success": float(np.mean([s for _, s in scores.values()]))}
+                    "eval/tracking_success": float(np.mean([s for _, s in scores.values()]))}
             if refresh_priorities:
                 fill = float(np.median(list(self.emd.values())))
                 self.bundle.library.set_priorities_from_emd({n: self.emd.get(n, fill) for n in self.bundle.library.names})
