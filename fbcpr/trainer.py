@@ -545,10 +545,13 @@ class Trainer:
         self.agent.load_state(tensors, meta)
         try:
             self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
-            self.next_priority, self.next_eval = _inf(meta["next_priority"]), _inf(meta["next_eval"])
-            self.next_ckpt, self.next_log, self.emd = _inf(meta["next_ckpt"]), meta["next_log"], meta["emd"]
+            tc = self.cfg.train
+            self.next_priority = _rescheduled(_inf(meta["next_priority"]), tc.priority_every, self.env_steps)
+            self.next_eval = _rescheduled(_inf(meta["next_eval"]), tc.eval_every, self.env_steps)
+            self.next_ckpt = _rescheduled(_inf(meta["next_ckpt"]), tc.checkpoint_every, self.env_steps)
+            self.next_log, self.emd = meta["next_log"], meta["emd"]
             self._wall_before = float(meta.get("wall_s", 0.0))  # checkpoints from before it was recorded: 0
-            best, tc = meta.get("best"), self.cfg.train
+            best = meta.get("best")
             if best is not None and (best["metric"], best["mode"]) == (tc.keep_best, tc.keep_best_mode):
                 self.best = (float(best["value"]), str(best["checkpoint"]))  # another metric starts a new record
             self.bundle.library.priorities = tensors["priorities"].numpy().copy()
@@ -753,6 +756,14 @@ def check_world_size(cfg: Config, world_size: int) -> None:
 def config_json(cfg: Config) -> str:
     """The run config as canonical JSON (what the ranks of one run must agree on)."""
     return json.dumps(asdict(cfg), sort_keys=True, default=str)
+
+
+def _rescheduled(saved: float, every: int, env_steps: int) -> float:
+    """The next env step of a periodic job after a resume whose config may change its period: 0 turns it off, and
+    one switched on starts at the next multiple of its period; otherwise the saved schedule goes on."""
+    if not every:
+        return math.inf
+    return saved if math.isfinite(saved) else (env_steps // every + 1) * every
 
 
 def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Path]:

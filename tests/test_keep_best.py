@@ -102,3 +102,13 @@ def test_humanoid_runs_log_upright_seconds_and_keep_the_best(tmp_path, two_clips
     top = max(v for _, v in pushed)
     name, best = best_of(tmp_path)
     assert best["value"] == top and name == f"step_{next(s for s, v in pushed if v == top):010d}"
+
+
+def test_a_resume_follows_the_evaluation_period_of_its_new_config(tmp_path):
+    Trainer(toy_cfg(eval_every=0, keep_best=""), tmp_path, progress=False).run(max_env_steps=80)
+    Trainer(toy_cfg(), tmp_path, resume=True, evaluate=scripted([1.0, 2.0]), progress=False).run(max_env_steps=80)
+    assert [s for s, _ in logged(tmp_path, "eval/score")] == [120, 160]  # switched on: from the next multiple
+    assert best_of(tmp_path)[1]["value"] == 2.0
+    # switched off again: no evaluation, and the run still ends (a period of 0 must not be stepped through)
+    summary = Trainer(toy_cfg(eval_every=0, keep_best=""), tmp_path, resume=True, progress=False).run(max_env_steps=80)
+    assert summary["env_steps"] == 240 and len(logged(tmp_path, "eval/score")) == 2
