@@ -21,7 +21,7 @@ from typing import Any
 
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.report import json_safe
-from fbcpr.evaluation.runner import evaluate
+from fbcpr.evaluation.runner import EPISODE_STEPS, evaluate
 from fbcpr.evaluation.upright import upright
 
 
@@ -42,7 +42,7 @@ def main() -> None:
     ap.add_argument("agent", help="checkpoint dir, run dir or 'pretrained'")
     ap.add_argument("--motions", default="data/clips/deepmimic", help="folder of the training clips (.npz)")
     ap.add_argument("--episodes", type=int, default=4)
-    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--steps", type=int, default=EPISODE_STEPS)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, help="write all figures as JSON here")
     args = ap.parse_args()

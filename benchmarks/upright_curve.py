@@ -18,6 +18,7 @@ import numpy as np
 
 from fbcpr.checkpoint import list_checkpoints, read_trainer_meta
 from fbcpr.evaluation.agents import make_agent
+from fbcpr.evaluation.runner import EPISODE_STEPS
 from fbcpr.evaluation.upright import pelvis_heights, seconds_upright
 from humanoid_env.model import CONTROL_HZ
 
@@ -75,7 +76,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path, help="run directories (with checkpoints/step_*)")
     ap.add_argument("--episodes", type=int, default=8)
-    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--steps", type=int, default=EPISODE_STEPS)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--every", type=int, default=1, help="evaluate every k-th checkpoint (and the last)")
     ap.add_argument("--push", type=float, nargs=2, metavar=("ANGLE", "VEL"), help="also pushed standing starts")

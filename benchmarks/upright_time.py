@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from fbcpr.evaluation.agents import make_agent
+from fbcpr.evaluation.runner import EPISODE_STEPS
 from fbcpr.evaluation.upright import STAND_PROMPT, pelvis_heights, seconds_upright, upright
 from humanoid_env.model import CONTROL_HZ
 
@@ -49,7 +50,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("agents", nargs="*", help="checkpoint dirs, run dirs or 'pretrained' (zero and random always run)")
     ap.add_argument("--episodes", type=int, default=16)
-    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--steps", type=int, default=EPISODE_STEPS)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--probe", action="store_true", help="also other prompts than the stand reward (checkpoints only)")
     ap.add_argument("--clip", help="with --probe: a clip .npz whose imitation z is probed")

@@ -364,7 +364,8 @@ class Trainer:
         """`train.eval_upright`: the policy as it is now, prompted like a checkpoint would be (a BFM on the stand
         reward, inferred from the reward-inference sample; a single-task agent on its own task)."""
         from fbcpr.evaluation.agents import live_agent
-        from fbcpr.evaluation.upright import EPISODE_STEPS, upright_medians
+        from fbcpr.evaluation.runner import EPISODE_STEPS
+        from fbcpr.evaluation.upright import upright_medians
 
         agent = live_agent(self.agent.model, self.cfg, self._reward_sample()[0])
         steps = min(self.cfg.env.max_episode_steps, EPISODE_STEPS)  # 10 s, or a whole training episode if shorter

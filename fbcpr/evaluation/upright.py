@@ -12,12 +12,12 @@ from typing import Any
 import numpy as np
 
 from fbcpr.evaluation.agents import action_mapping
+from fbcpr.evaluation.runner import EPISODE_STEPS  # 300 steps: 10 s
 from humanoid_env.env import FALLEN_HEIGHT
 from humanoid_env.model import CONTROL_HZ
 
 FALLEN, STANDING = FALLEN_HEIGHT, 0.8
 STAND_PROMPT = "move-ego-0-0"
-EPISODE_STEPS = 10 * CONTROL_HZ  # 10 s
 #: a pushed standing start (`DefaultInit` joint-angle noise in rad, velocity noise) that topples the zero action
 PUSH = (0.1, 0.3)
 
