@@ -162,6 +162,11 @@ class TrainConfig:
     # humanoid: each evaluation also measures the median seconds upright under the stand prompt over this many
     # standing and pushed standing starts (eval/upright_s, eval/upright_pushed_s; fbcpr.evaluation.upright)
     eval_upright: int = _f(0, _range(0, 4096))
+    # humanoid: each evaluation also rolls out these reward tasks and goal poses (names as `fbcpr eval --tasks`)
+    # for eval_episodes episodes from the same test starts every time, and logs eval/return/<task>,
+    # eval/goal/<pose> (success) and eval/goal_success: curves of returns and goal success against steps
+    eval_tasks: list[str] = _f([])
+    eval_episodes: int = _f(8, _range(1, 4096))
     # an evaluation metric (e.g. eval/upright_pushed_s) whose best value's checkpoint checkpoints/best names and
     # retention spares: a policy that unlearns a skill later in the run keeps its best checkpoint
     keep_best: str = _f("", _check(lambda v: v == "" or v.startswith("eval/"), "must be '' or an eval/ metric"))
@@ -226,6 +231,12 @@ def _type_ok(value: Any, tp: Any) -> tuple[bool, Any]:
         return math.isfinite(float(value)), float(value)
     if tp is str:
         return isinstance(value, str), value
+    if origin is list:
+        (item,) = typing.get_args(tp)
+        if not isinstance(value, list):
+            return False, value
+        checked = [_type_ok(v, item) for v in value]
+        return all(ok for ok, _ in checked), [v for _, v in checked]
     return False, value
 
 
@@ -294,14 +305,52 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if tc.eval_upright and get_method(cfg.algorithm).promptable and not tc.reward_buffer_size:
         raise ConfigError("train.eval_upright: prompting the stand reward needs a reward-inference sample; set "
                           "train.reward_buffer_size > 0")
+    if tc.eval_tasks:
+        _check_eval_tasks(cfg)
     if tc.keep_best and not tc.eval_every:
         raise ConfigError(f"train.keep_best: {tc.keep_best!r} comes from evaluations; set train.eval_every > 0")
     if tc.keep_best.startswith("eval/upright") and not tc.eval_upright:
         raise ConfigError(f"train.keep_best: {tc.keep_best!r} is logged only with train.eval_upright > 0")
+    if tc.keep_best.startswith(("eval/return/", "eval/goal")) and not _logs_task_metric(tc):
+        raise ConfigError(f"train.keep_best: {tc.keep_best!r} is logged only for a reward task or goal pose of "
+                          f"train.eval_tasks (now {tc.eval_tasks})")
     if cfg.env.npmp is not None and (cfg.algorithm != "td3" or cfg.agent.reward.imitation):
         raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
                           "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")
     return cfg
+
+
+def _check_eval_tasks(cfg: Config) -> None:
+    """`train.eval_tasks` names humanoid reward tasks or goal poses, each once, and is evaluated at all."""
+    from fbcpr.methods import get_method
+
+    tc = cfg.train
+    if cfg.env.name != "humanoid" or not tc.eval_every:
+        raise ConfigError("train.eval_tasks: rolls out humanoid tasks at each evaluation; needs env.name humanoid "
+                          "and train.eval_every > 0")
+    if get_method(cfg.algorithm).promptable and not tc.reward_buffer_size:
+        raise ConfigError("train.eval_tasks: prompting a reward needs a reward-inference sample; set "
+                          "train.reward_buffer_size > 0")
+    from humanoid_env.tasks import GOALS, get_reward
+
+    for name in tc.eval_tasks:
+        if name in GOALS:
+            continue
+        try:
+            get_reward(name)
+        except ValueError as err:
+            raise ConfigError(f"train.eval_tasks: {name!r} is neither a reward task nor a goal pose ({err})") from None
+    if len(set(tc.eval_tasks)) != len(tc.eval_tasks):
+        raise ConfigError(f"train.eval_tasks: a name is given twice in {tc.eval_tasks}")
+
+
+def _logs_task_metric(tc: TrainConfig) -> bool:
+    """Whether `train.keep_best` names an eval/return/ or eval/goal metric that `train.eval_tasks` logs."""
+    from humanoid_env.tasks import GOALS
+
+    goals = [n for n in tc.eval_tasks if n in GOALS]
+    logged = {f"eval/return/{n}" for n in tc.eval_tasks if n not in GOALS} | {f"eval/goal/{n}" for n in goals}
+    return tc.keep_best in logged | ({"eval/goal_success"} if goals else set())
 
 
 def model_config_from_dict(data: dict[str, Any]) -> ModelConfig:

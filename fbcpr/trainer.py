@@ -334,7 +334,7 @@ class Trainer:
         (`train.eval_upright`) and the custom eval hook."""
         tc, r = self.cfg.train, self.replicas
         custom = self.custom_eval if r.is_main else None  # the custom hook runs once, on rank 0
-        out = self._upright_eval() if tc.eval_upright and r.is_main else {}
+        out = self._policy_eval() if (tc.eval_upright or tc.eval_tasks) and r.is_main else {}
         if not self.agent.z_dim:  # a single-task agent has no tracking prompt: only the hooks
             return {**out, **({f"eval/{k}": float(v) for k, v in custom(self.agent).items()} if custom else {})}
         rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
@@ -360,16 +360,26 @@ class Trainer:
             out.update({f"eval/{k}": float(v) for k, v in custom(self.agent).items()})
         return out
 
-    def _upright_eval(self) -> dict[str, float]:
-        """`train.eval_upright`: the policy as it is now, prompted like a checkpoint would be (a BFM on the stand
-        reward, inferred from the reward-inference sample; a single-task agent on its own task)."""
+    def _policy_eval(self) -> dict[str, float]:
+        """The policy as it is now, prompted like a checkpoint would be (a BFM through the reward-inference
+        sample; a single-task agent acts on its own), on the same starts at every evaluation:
+        `train.eval_upright` (the stand prompt) and `train.eval_tasks` (returns, goal success)."""
         from fbcpr.evaluation.agents import live_agent
-        from fbcpr.evaluation.runner import EPISODE_STEPS
+        from fbcpr.evaluation.runner import EPISODE_STEPS, evaluate
         from fbcpr.evaluation.upright import upright_medians
 
+        tc = self.cfg.train
         agent = live_agent(self.agent.model, self.cfg, self._reward_sample()[0])
         steps = min(self.cfg.env.max_episode_steps, EPISODE_STEPS)  # 10 s, or a whole training episode if shorter
-        return {f"eval/{k}": v for k, v in upright_medians(agent, self.cfg.train.eval_upright, steps).items()}
+        out = {f"eval/{k}": v for k, v in upright_medians(agent, tc.eval_upright, steps).items()} if tc.eval_upright else {}
+        if tc.eval_tasks:
+            res = evaluate(agent, "all", tasks=tc.eval_tasks, episodes=tc.eval_episodes, motions=self.bundle.library,
+                           steps=steps, seed=tc.seed, show_progress=False)
+            out |= {f"eval/return/{t}": r["return_mean"] for t, r in res.get("reward", {}).items()}
+            out |= {f"eval/goal/{g}": r["success"] for g, r in res.get("goal", {}).items()}
+            if "goal" in res["summary"]:
+                out["eval/goal_success"] = res["summary"]["goal"]["success"]
+        return out
 
     def _gather_scores(self, scores: dict[str, tuple[float, bool]] | None,
                        failed: bool) -> dict[str, tuple[float, bool]] | None:

@@ -34,11 +34,33 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
     ({"train": {"eval_every": 10, "keep_best": "eval/upright_s"}}, "train.keep_best"),       # never measured
     ({"train": {"eval_every": 10, "keep_best": "eval/x", "keep_best_mode": "top"}}, "train.keep_best_mode"),
     ({"model": [1, 2]}, "model"),
+    ({"train": {"eval_every": 10, "eval_tasks": "jump-2"}}, "train.eval_tasks"),            # not a list
+    ({"train": {"eval_every": 10, "eval_tasks": ["jump-2", 3]}}, "train.eval_tasks"),       # not all names
+    ({"train": {"eval_every": 10, "eval_tasks": ["jump-2", "fly-9"]}}, "train.eval_tasks"),  # unknown task
+    ({"train": {"eval_every": 10, "eval_tasks": ["t_pose", "t_pose"]}}, "train.eval_tasks"),  # twice
+    ({"train": {"eval_tasks": ["jump-2"]}}, "train.eval_tasks"),                             # never evaluated
+    ({"env": {"name": "toy"}, "train": {"eval_every": 10, "eval_tasks": ["jump-2"]}}, "train.eval_tasks"),
+    ({"train": {"eval_every": 10, "eval_tasks": ["jump-2"], "reward_buffer_size": 0}}, "train.eval_tasks"),
+    ({"train": {"eval_every": 10, "eval_tasks": ["jump-2"], "eval_episodes": 0}}, "train.eval_episodes"),
+    ({"train": {"eval_every": 10, "eval_tasks": ["jump-2"], "keep_best": "eval/return/sitonground"}},
+     "train.keep_best"),                                                                   # not rolled out
+    ({"train": {"eval_every": 10, "eval_tasks": ["jump-2"], "keep_best": "eval/goal_success"}}, "train.keep_best"),
 ])
 def test_errors_name_the_key(data, key):
     with pytest.raises(ConfigError) as e:
         config_from_dict(data)
     assert str(e.value).startswith(key)
+
+
+def test_eval_tasks_is_a_list_of_names_that_keep_best_may_name(tmp_path):
+    cfg = config_from_dict({"train": {"eval_every": 10, "eval_tasks": ["jump-2", "t_pose"],
+                                      "keep_best": "eval/goal_success"}})
+    assert cfg.train.eval_tasks == ["jump-2", "t_pose"] and config_from_dict({}).train.eval_tasks == []
+    for metric in ("eval/return/jump-2", "eval/goal/t_pose"):
+        assert config_from_dict({"train": {"eval_every": 10, "eval_tasks": ["jump-2", "t_pose"],
+                                           "keep_best": metric}}).train.keep_best == metric
+    (tmp_path / "c.yaml").write_text(dump_config(cfg))
+    assert load_config(tmp_path / "c.yaml").train.eval_tasks == ["jump-2", "t_pose"]  # saved configs load again
 
 
 def test_defaults_are_the_paper_values():

@@ -1,5 +1,6 @@
-"""Evaluations during training: the humanoid's upright time (`train.eval_upright`) and the checkpoint of the best
-evaluation (`train.keep_best`), which retention spares and a resume remembers."""
+"""Evaluations during training: the humanoid's upright time (`train.eval_upright`), returns and goal success
+(`train.eval_tasks`), and the checkpoint of the best evaluation (`train.keep_best`), which retention spares and a
+resume remembers."""
 import shutil
 
 import pytest
@@ -9,7 +10,9 @@ from fbcpr.bfm import resolve_checkpoint
 from fbcpr.checkpoint import CheckpointError, read_trainer_meta
 from fbcpr.config import config_from_dict
 from fbcpr.evaluation.agents import make_agent
+from fbcpr.evaluation.runner import evaluate
 from fbcpr.trainer import Trainer
+from motions.library import MotionLibrary
 
 torch.set_num_threads(1)
 
@@ -86,6 +89,7 @@ def test_humanoid_runs_log_upright_seconds_and_keep_the_best(tmp_path, two_clips
         "train": {"num_envs": 2, "total_env_steps": 24, "warmup_steps": 4, "rollout_steps": 4,
                   "updates_per_rollout": 1, "buffer_capacity": 100, "priority_every": 0, "eval_every": 8,
                   "eval_upright": 2, "keep_best": "eval/upright_pushed_s", "checkpoint_every": 0,
+                  "eval_tasks": ["move-ego-0-0", "t_pose"], "eval_episodes": 2,
                   "log_every": 4, "reward_buffer_size": 8, "torch_threads": 1},
     }
     if algorithm == "td3":
@@ -102,6 +106,16 @@ def test_humanoid_runs_log_upright_seconds_and_keep_the_best(tmp_path, two_clips
     top = max(v for _, v in pushed)
     name, best = best_of(tmp_path)
     assert best["value"] == top and name == f"step_{next(s for s, v in pushed if v == top):010d}"
+    # eval_tasks: returns and goal success at each evaluation, the numbers `fbcpr eval` gives the checkpoint
+    returns, goals = dict(logged(tmp_path, "eval/return/move-ego-0-0")), dict(logged(tmp_path, "eval/goal/t_pose"))
+    assert len(returns) == len(goals) == 3 and all(0 <= v <= steps for v in returns.values())
+    assert all(0 <= v <= 1 for v in goals.values())
+    assert dict(logged(tmp_path, "eval/goal_success")) == goals  # the mean over the one pose
+    again = evaluate(make_agent(str(tmp_path / "checkpoints" / "best")), "all", tasks=["move-ego-0-0", "t_pose"],
+                     episodes=2, motions=MotionLibrary.load(two_clips), steps=steps, seed=0, show_progress=False)
+    step = int(name.removeprefix("step_"))
+    assert again["reward"]["move-ego-0-0"]["return_mean"] == pytest.approx(returns[step], rel=1e-5)
+    assert again["goal"]["t_pose"]["success"] == pytest.approx(goals[step])
 
 
 def test_a_resume_follows_the_evaluation_period_of_its_new_config(tmp_path):
