@@ -3,16 +3,19 @@
 One row of panels per metric: against env steps, and against hours of training (`wall_s`, summed over a run's
 resumes; runs logged before it existed are drawn against env steps only). One line per run, so seeds or arms of a
 config compare at a glance, without evaluating any checkpoint again (`train.eval_upright` logs
-`eval/upright_s` and `eval/upright_pushed_s` during training; benchmarks/upright_curve.py measures checkpoints
-afterwards).
+`eval/upright_s` and `eval/upright_pushed_s` during training, `train.eval_tasks` returns and goal success;
+benchmarks/upright_curve.py measures checkpoints afterwards). Patterns such as `'eval/return/*'` pick every
+matching key.
 
     python benchmarks/training_curves.py runs/td3-stand-s3 runs/rfs-F --metrics eval/upright_s \
         eval/upright_pushed_s --out docs/img/training_curves
+    python benchmarks/training_curves.py runs/rfs-E --metrics 'eval/return/*' eval/goal_success --out runs/E
 """
 from __future__ import annotations
 
 import argparse
 import csv
+import fnmatch
 from collections import defaultdict
 from pathlib import Path
 
@@ -33,6 +36,17 @@ def series(logged: dict[str, dict[int, float]], key: str) -> list[tuple[int, flo
     """(env steps, hours of training or None, value) for every logged value of `key`."""
     wall = logged.get("wall_s", {})
     return [(step, wall[step] / 3600 if step in wall else None, v) for step, v in sorted(logged.get(key, {}).items())]
+
+
+def expand(patterns: list[str], keys: set[str]) -> list[str]:
+    """The metrics asked for, with shell-style patterns (`eval/return/*`) replaced by the logged keys they match."""
+    out: list[str] = []
+    for pattern in patterns:
+        found = sorted(fnmatch.filter(keys, pattern)) if any(c in pattern for c in "*?[") else [pattern]
+        if not found:
+            raise SystemExit(f"--metrics {pattern!r} matches no logged key (logged: {', '.join(sorted(keys))})")
+        out += [k for k in found if k not in out]
+    return out
 
 
 def plot(curves: dict[str, dict[str, list]], metrics: list[str], path: Path) -> None:
@@ -62,16 +76,18 @@ def plot(curves: dict[str, dict[str, list]], metrics: list[str], path: Path) -> 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path, help="run directories (with metrics.csv)")
-    ap.add_argument("--metrics", nargs="+", required=True, help="metrics.csv keys, e.g. eval/upright_s reward")
+    ap.add_argument("--metrics", nargs="+", required=True,
+                    help="metrics.csv keys or patterns, e.g. eval/upright_s 'eval/return/*' reward")
     ap.add_argument("--out", type=Path, default=Path("training_curves"), help="writes OUT.csv and OUT.png")
     args = ap.parse_args()
+    runs = {run: read_metrics(run) for run in args.runs}
+    metrics = expand(args.metrics, set().union(*runs.values()))
     curves = {}
-    for run in args.runs:
-        logged = read_metrics(run)
-        missing = [k for k in args.metrics if k not in logged]
+    for run, logged in runs.items():
+        missing = [k for k in metrics if k not in logged]
         if missing:
             raise SystemExit(f"{run}/metrics.csv: no {', '.join(missing)} (logged: {', '.join(sorted(logged))})")
-        curves[run.name] = {k: series(logged, k) for k in args.metrics}
+        curves[run.name] = {k: series(logged, k) for k in metrics}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with open(args.out.with_suffix(".csv"), "w", newline="") as f:
         writer = csv.writer(f)
@@ -79,7 +95,7 @@ def main() -> None:
         for run, by_key in curves.items():
             for key, pts in by_key.items():
                 writer.writerows([run, key, step, "" if h is None else f"{h:.4f}", v] for step, h, v in pts)
-    plot(curves, args.metrics, args.out.with_suffix(".png"))
+    plot(curves, metrics, args.out.with_suffix(".png"))
     for run, by_key in curves.items():
         for key, pts in by_key.items():
             top = max(p[2] for p in pts)
