@@ -1,4 +1,6 @@
 """Metrics of App. C.3 on small synthetic trajectories whose values are worked out by hand."""
+import warnings
+
 import numpy as np
 import pytest
 
@@ -45,6 +47,23 @@ def test_emd_by_hand():
     assert emd(traj([0.0, 1.0, 2.0]) + np.eye(358)[5] * 2, ref) == pytest.approx(2.0)  # constant 2 offset
     assert emd(traj([1.0, 2.0, 3.0]), ref) == pytest.approx(1.0)  # total transport 3, mass 1/3 each
     assert emd(traj([1.0]), traj([0.0, 2.0])) == pytest.approx(1.0)  # unequal lengths: uniform weights
+
+
+def test_emd_of_long_trajectories_reaches_the_optimum():
+    ot = pytest.importorskip("ot")
+    rng = np.random.default_rng(0)
+    n = 1400  # a long clip: POT's default iteration cap stops short here, with a warning
+    pad = ((0, 0), (0, 214 - 20))  # 20 moving pose features
+    clip = np.pad(np.sin(np.linspace(0, 20, n)[:, None] * rng.uniform(0.5, 2, (1, 20))), pad)
+    fallen = np.pad(rng.normal(size=(1, 20)) + rng.normal(0, 1e-3, (n, 20)), pad)  # an agent lying still
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        exact = emd(clip, fallen)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        w = np.full(n, 1.0 / n)
+        capped = ot.emd2(w, w, ot.dist(clip, fallen, metric="euclidean"))
+    assert caught and exact < capped  # the capped solve warned and is a worse (higher) transport cost
 
 
 def test_metric_inputs_are_checked():
