@@ -31,7 +31,7 @@ from fbcpr.checkpoint import (
     pointed_checkpoint,
     save_checkpoint,
 )
-from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict
+from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict, portable_config
 from fbcpr.errors import InputError
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.prompt import Prompt
@@ -240,7 +240,8 @@ class BFM:
 
     # ---------------------------------------------------------------------------------- saving
     def save(self, path: str | Path, reward_samples: int | None = None, half: bool = False) -> Path:
-        """Write an inference checkpoint (model, config, reward-inference buffer) atomically at `path`.
+        """Write an inference checkpoint (model, config, reward-inference buffer) atomically at `path`; paths of the
+        config under the working directory are written relative to it (`portable_config`).
 
         `reward_samples` keeps a seeded subsample of the reward buffer and `half` stores it as float16: the
         compact form a checkpoint that ships with a package or an app needs (docs/results.md measures what a
@@ -250,7 +251,8 @@ class BFM:
             if reward_samples < 1:
                 raise InputError(f"reward_samples must be >= 1, got {reward_samples}")
             buf = self.reward_samples(reward_samples, seed=0)[0]
-        return save_checkpoint(path, self.model, self.config, reward_buffer=buf,
+        cfg = portable_config(self.config) if isinstance(self.config, Config) else self.config
+        return save_checkpoint(path, self.model, cfg, reward_buffer=buf,
                                reward_dtype=torch.float16 if half else torch.float32)
 
     def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None, repo_id: str | None = None) -> Path:

@@ -400,14 +400,35 @@ def load_config(path: str | Path) -> Config:
     except yaml.YAMLError as e:
         raise ConfigError(f"{path}: invalid YAML ({e})") from None
     cfg = config_from_dict(data or {})
+    for part, key, value in _paths(cfg):
+        if not Path(value).expanduser().is_absolute():
+            setattr(part, key, str((path.parent / value).resolve()))
+    return cfg
+
+
+def _paths(cfg: Config) -> list[tuple[Any, str, str]]:
+    """(section object, key, value) of every path that `cfg` holds (PATH_KEYS that are set, for its env)."""
+    out = []
     for section, key, env in PATH_KEYS:
         part = functools.reduce(lambda obj, name: getattr(obj, name, None), section.split("."), cfg)
         value = getattr(part, key, None)
-        if value is None or env not in (None, cfg.env.name):
-            continue
-        if value != "synthetic" and not Path(value).expanduser().is_absolute():
-            setattr(part, key, str((path.parent / value).resolve()))
-    return cfg
+        if value is not None and value != "synthetic" and env in (None, cfg.env.name):
+            out.append((part, key, value))
+    return out
+
+
+def portable_config(cfg: Config, base: str | Path = ".") -> Config:
+    """A copy whose paths under `base` are relative to it, so that a checkpoint made to be shared does not carry
+    this machine's folders (paths elsewhere stay as they are: they were never portable)."""
+    import copy
+
+    out = copy.deepcopy(cfg)
+    root = Path(base).resolve()
+    for part, key, value in _paths(out):
+        target = Path(value).expanduser()
+        if target.is_absolute() and target.is_relative_to(root):
+            setattr(part, key, target.relative_to(root).as_posix())
+    return out
 
 
 def shipped_configs() -> dict[str, Path]:

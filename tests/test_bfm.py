@@ -1,6 +1,7 @@
 """BFM: act() conventions, save/load, the Hugging Face cache layout offline, the hub folder and push."""
 from __future__ import annotations
 
+import copy
 import json
 import shutil
 from pathlib import Path
@@ -118,6 +119,18 @@ def test_save_and_load_round_trip(bfm, tmp_path):
     for k in ("next_obs", "qpos", "qvel"):
         np.testing.assert_array_equal(again.reward_buffer[k], bfm.reward_buffer[k])
     assert again.sequence_length == 4 and again.z_dim == 8
+
+
+def test_saved_config_holds_paths_under_the_working_directory_relative(bfm, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    cfg = copy.deepcopy(bfm.config)
+    cfg.env.motions = str(tmp_path / "data" / "clips")
+    out = BFM(bfm.model, cfg, reward_buffer=bfm.reward_buffer).save("shared")
+    assert yaml.safe_load((out / "config.yaml").read_text())["env"]["motions"] == "data/clips"
+    assert cfg.env.motions == str(tmp_path / "data" / "clips")  # the model's own config is left as it was
+    cfg.env.motions = "/elsewhere/clips"  # outside the working directory: nothing to make relative to
+    out = BFM(bfm.model, cfg, reward_buffer=bfm.reward_buffer).save("shared")
+    assert yaml.safe_load((out / "config.yaml").read_text())["env"]["motions"] == "/elsewhere/clips"
 
 
 def test_run_directory_means_its_latest_checkpoint(ckpt, tmp_path):
