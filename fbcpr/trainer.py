@@ -371,7 +371,9 @@ class Trainer:
         tc = self.cfg.train
         agent = live_agent(self.agent.model, self.cfg, self._reward_sample()[0])
         steps = min(self.cfg.env.max_episode_steps, EPISODE_STEPS)  # 10 s, or a whole training episode if shorter
-        out = {f"eval/{k}": v for k, v in upright_medians(agent, tc.eval_upright, steps).items()} if tc.eval_upright else {}
+        out: dict[str, float] = {}
+        if tc.eval_upright:
+            out |= {f"eval/{k}": v for k, v in upright_medians(agent, tc.eval_upright, steps).items()}
         if tc.eval_tasks:
             res = evaluate(agent, "all", tasks=tc.eval_tasks, episodes=tc.eval_episodes, motions=self.bundle.library,
                            steps=steps, seed=tc.seed, show_progress=False)
