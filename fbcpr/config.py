@@ -299,14 +299,16 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if cfg.env.fallen_terminates and not cfg.env.reset_fallen_s:
         raise ConfigError("env.fallen_terminates: needs env.reset_fallen_s > 0 (how long fallen ends an episode)")
     tc = cfg.train
-    if tc.eval_upright and (cfg.env.name != "humanoid" or not tc.eval_every):
-        raise ConfigError("train.eval_upright: measures the humanoid at each evaluation; needs env.name humanoid and "
-                          "train.eval_every > 0")
-    if tc.eval_upright and get_method(cfg.algorithm).promptable and not tc.reward_buffer_size:
-        raise ConfigError("train.eval_upright: prompting the stand reward needs a reward-inference sample; set "
-                          "train.reward_buffer_size > 0")
-    if tc.eval_tasks:
-        _check_eval_tasks(cfg)
+    for key in ("eval_upright", "eval_tasks"):  # the policy evaluations prompt the humanoid at each evaluation
+        if not getattr(tc, key):
+            continue
+        if cfg.env.name != "humanoid" or not tc.eval_every:
+            raise ConfigError(f"train.{key}: rolls out the humanoid at each evaluation; needs env.name humanoid and "
+                              "train.eval_every > 0")
+        if get_method(cfg.algorithm).promptable and not tc.reward_buffer_size:
+            raise ConfigError(f"train.{key}: prompting a reward needs a reward-inference sample; set "
+                              "train.reward_buffer_size > 0")
+    _check_eval_tasks(tc.eval_tasks)
     if tc.keep_best and not tc.eval_every:
         raise ConfigError(f"train.keep_best: {tc.keep_best!r} comes from evaluations; set train.eval_every > 0")
     if tc.keep_best.startswith("eval/upright") and not tc.eval_upright:
@@ -320,28 +322,21 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     return cfg
 
 
-def _check_eval_tasks(cfg: Config) -> None:
-    """`train.eval_tasks` names humanoid reward tasks or goal poses, each once, and is evaluated at all."""
-    from fbcpr.methods import get_method
-
-    tc = cfg.train
-    if cfg.env.name != "humanoid" or not tc.eval_every:
-        raise ConfigError("train.eval_tasks: rolls out humanoid tasks at each evaluation; needs env.name humanoid "
-                          "and train.eval_every > 0")
-    if get_method(cfg.algorithm).promptable and not tc.reward_buffer_size:
-        raise ConfigError("train.eval_tasks: prompting a reward needs a reward-inference sample; set "
-                          "train.reward_buffer_size > 0")
+def _check_eval_tasks(names: list[str]) -> None:
+    """`train.eval_tasks` names humanoid reward tasks or goal poses, each once."""
+    if not names:
+        return
     from humanoid_env.tasks import GOALS, get_reward
 
-    for name in tc.eval_tasks:
+    for name in names:
         if name in GOALS:
             continue
         try:
             get_reward(name)
         except ValueError as err:
             raise ConfigError(f"train.eval_tasks: {name!r} is neither a reward task nor a goal pose ({err})") from None
-    if len(set(tc.eval_tasks)) != len(tc.eval_tasks):
-        raise ConfigError(f"train.eval_tasks: a name is given twice in {tc.eval_tasks}")
+    if len(set(names)) != len(names):
+        raise ConfigError(f"train.eval_tasks: a name is given twice in {names}")
 
 
 def _logs_task_metric(tc: TrainConfig) -> bool:

@@ -330,8 +330,8 @@ class Trainer:
         return True
 
     def evaluate(self, refresh_priorities: bool = False) -> dict[str, float]:
-        """Track the clips (tracking EMD / success), optionally refresh priorities, plus the upright measures
-        (`train.eval_upright`) and the custom eval hook."""
+        """Track the clips (tracking EMD / success), optionally refresh priorities, plus the policy evaluations
+        (`train.eval_upright`, `train.eval_tasks`) and the custom eval hook."""
         tc, r = self.cfg.train, self.replicas
         custom = self.custom_eval if r.is_main else None  # the custom hook runs once, on rank 0
         out = self._policy_eval() if (tc.eval_upright or tc.eval_tasks) and r.is_main else {}
