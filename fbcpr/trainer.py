@@ -507,7 +507,8 @@ class Trainer:
         n = min(n_max, old_avail + new_n)
         k_new = min(new_n, n - min(old_avail, round(n * old_n / max(old_n + new_n, 1))))
         k_old = min(old_avail, n - k_new)
-        old = {k: v[np.sort(rng.choice(carried_n, k_old, replace=False))] for k, v in self._carried.items()}
+        keep = np.sort(rng.choice(carried_n, k_old, replace=False))  # one draw for all arrays: rows stay transitions
+        old = {k: v[keep] for k, v in self._carried.items()}
         if k_new:
             fresh = self.buffer.reward_inference_sample(k_new, rng)
             old = {k: np.concatenate([old[k], fresh[k]]) for k in old}
