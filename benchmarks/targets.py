@@ -9,7 +9,10 @@ and episodes, and prints each measure with its target:
 - goal success, mean over the named poses (target >= 0.3);
 - tracking EMD, mean over the training clips (target <= 3).
 
-    python benchmarks/targets.py pretrained --motions data/clips/deepmimic --episodes 4
+    python benchmarks/targets.py pretrained --motions data/clips/deepmimic --episodes 4 --out runs/targets.json
+
+The floors are seeded and deterministic, so `--floors runs/targets.json` reuses the zero and random rows of an
+earlier run with the same settings and costs a third of the time.
 """
 from __future__ import annotations
 
@@ -45,11 +48,20 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=EPISODE_STEPS)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, help="write all figures as JSON here")
+    ap.add_argument("--floors", type=Path, help="take the zero and random rows from this earlier --out file")
     args = ap.parse_args()
     from motions.library import MotionLibrary
 
+    settings = {"motions": str(args.motions), "episodes": args.episodes, "steps": args.steps, "seed": args.seed}
+    rows = {}
+    if args.floors:
+        earlier = json.loads(args.floors.read_text())
+        if earlier.get("settings") != settings:
+            raise SystemExit(f"--floors {args.floors}: measured with {earlier.get('settings')}, not {settings}")
+        rows = {name: earlier[name] for name in ("zero", "random")}
     motions = MotionLibrary.load(args.motions)
-    rows = {name: measure(name, motions, args.episodes, args.steps, args.seed) for name in ("zero", "random", args.agent)}
+    for name in ("zero", "random", args.agent):
+        rows[name] = rows.get(name) or measure(name, motions, args.episodes, args.steps, args.seed)
     model, floors = rows[args.agent], [rows["zero"], rows["random"]]
     wins = [t for t, r in model["returns"].items() if all(r > f["returns"][t] for f in floors)]
     for r in rows.values():
@@ -68,7 +80,7 @@ def main() -> None:
               f"{'yes' if met else 'no'}")
     print(f"tasks beating both floors: {', '.join(sorted(wins)) or 'none'}")
     if args.out:
-        args.out.write_text(json.dumps(json_safe(rows), indent=1))
+        args.out.write_text(json.dumps(json_safe({**rows, "settings": settings}), indent=1))
 
 
 if __name__ == "__main__":

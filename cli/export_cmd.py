@@ -1,4 +1,4 @@
-"""`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample)."""
+"""`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample of states)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,12 +15,15 @@ def export_command(
     reward_samples: int = typer.Option(20_000, "--reward-samples", min=1,
                                        help="States kept for reward prompts (a seeded subsample of the buffer)."),
     half: bool = typer.Option(True, "--half/--full", help="Store the reward states as float16 (half the size)."),
+    states_only: bool = typer.Option(True, "--states-only/--with-obs",
+                                     help="Store the reward states without their observations, which loading "
+                                          "rebuilds from qpos/qvel (a third of the size on the humanoid)."),
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.bfm import BFM
 
     bfm = BFM.load(checkpoint)
-    path = bfm.save(out, reward_samples=reward_samples, half=half)
+    path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
     sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
     for name, size in sizes.items():
         console.print(f"  {name:28s} {size / 2**20:8.2f} MiB")

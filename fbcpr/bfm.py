@@ -32,6 +32,7 @@ from fbcpr.checkpoint import (
     save_checkpoint,
 )
 from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict, portable_config
+from fbcpr.envs import inconsistent_rows
 from fbcpr.errors import InputError
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.prompt import Prompt
@@ -111,6 +112,11 @@ class BFM:
         return int(self.model.cfg.z_dim)
 
     @property
+    def env_name(self) -> str:
+        """The env the model was trained on (a checkpoint with only a model config is the humanoid's)."""
+        return self.config.env.name if isinstance(self.config, Config) else "humanoid"
+
+    @property
     def action_mapping(self) -> str:
         """How the env must map this model's actions to PD targets (`humanoid_env.actions`), as it was trained."""
         return self.config.env.action_mapping if isinstance(self.config, Config) else DEFAULT_ACTION_MAPPING
@@ -128,7 +134,7 @@ class BFM:
             self._reward_buffer = self._checkpoint.reward_buffer()
             self._checkpoint = None
         if self._reward_buffer is not None and not self._buffer_checked:
-            check_reward_buffer(self._reward_buffer, self.obs_dim)
+            check_reward_buffer(self._reward_buffer, self.obs_dim, self.env_name)
             self._buffer_checked = True
         return self._reward_buffer
 
@@ -239,13 +245,15 @@ class BFM:
         return self.prompt.imitate(motion)
 
     # ---------------------------------------------------------------------------------- saving
-    def save(self, path: str | Path, reward_samples: int | None = None, half: bool = False) -> Path:
+    def save(self, path: str | Path, reward_samples: int | None = None, half: bool = False,
+             states_only: bool = False) -> Path:
         """Write an inference checkpoint (model, config, reward-inference buffer) atomically at `path`; paths of the
         config under the working directory are written relative to it (`portable_config`).
 
-        `reward_samples` keeps a seeded subsample of the reward buffer and `half` stores it as float16: the
-        compact form a checkpoint that ships with a package or an app needs (docs/results.md measures what a
-        smaller buffer costs in prompt quality)."""
+        `reward_samples` keeps a seeded subsample of the reward buffer, `half` stores it as float16 and
+        `states_only` drops its observations, which loading rebuilds from the states: the compact form a
+        checkpoint that ships with a package or an app needs (docs/results.md measures what a smaller buffer
+        costs in prompt quality)."""
         buf = self.reward_buffer
         if buf is not None and reward_samples is not None:
             if reward_samples < 1:
@@ -253,7 +261,7 @@ class BFM:
             buf = self.reward_samples(reward_samples, seed=0)[0]
         cfg = portable_config(self.config) if isinstance(self.config, Config) else self.config
         return save_checkpoint(path, self.model, cfg, reward_buffer=buf,
-                               reward_dtype=torch.float16 if half else torch.float32)
+                               reward_dtype=torch.float16 if half else torch.float32, reward_obs=not states_only)
 
     def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None, repo_id: str | None = None) -> Path:
         """The folder `push_to_hub` uploads: an inference checkpoint plus a README.md model card."""
@@ -283,8 +291,9 @@ class BFM:
             )
 
 
-def check_reward_buffer(buf: dict[str, np.ndarray], obs_dim: int) -> None:
-    """next_obs (N, obs_dim) with N >= 1, qpos and qvel (N, ·), all finite; CheckpointError naming what is wrong."""
+def check_reward_buffer(buf: dict[str, np.ndarray], obs_dim: int, env_name: str) -> None:
+    """next_obs (N, obs_dim) with N >= 1, qpos and qvel (N, ·), all finite, each row one state's; CheckpointError
+    naming what is wrong."""
     missing = [k for k in REWARD_KEYS if k not in buf]
     if missing:
         raise CheckpointError(f"reward-inference buffer: missing arrays {missing}")
@@ -296,6 +305,11 @@ def check_reward_buffer(buf: dict[str, np.ndarray], obs_dim: int) -> None:
             raise CheckpointError(f"reward-inference buffer: {key} has shape {shape}, expected ({n or 'N>0'}, {width})")
         if not np.isfinite(np.sum(buf[key], dtype=np.float64)):
             raise CheckpointError(f"reward-inference buffer: {key} contains NaN or inf")
+    if inconsistent_rows(buf, env_name) > 0.5:
+        raise CheckpointError("reward-inference buffer: its next_obs rows are not the observations of its qpos/qvel "
+                              "rows, so reward prompts would pair one state's reward with another's embedding (runs "
+                              "resumed before this was checked mixed them). Refresh it: resume the run with "
+                              "--more-steps and train.warmup_steps of the same size (docs/usage.md)")
 
 
 def _all_finite(x: torch.Tensor) -> bool:

@@ -5,7 +5,8 @@ Layout of a checkpoint directory:
     config.yaml                 the run config (or just the `model:` section)
     manifest.json               format version, method (`algorithm`), library versions, sha256 and shapes of every file
     trainer_state.safetensors   optional: target nets, optimizer moments; JSON scalars/counters/RNG in its header
-    reward_buffer.safetensors   optional: next_obs, qpos, qvel subsample for reward prompts
+    reward_buffer.safetensors   optional: next_obs, qpos, qvel subsample for reward prompts (exports may store
+                                the states alone: next_obs is rebuilt from them on load, `fbcpr.envs.state_observer`)
     replay_buffer.safetensors   optional: the whole replay buffer (exact resume)
 
 `save_checkpoint` writes everything into a temporary sibling directory and moves it into place with
@@ -42,6 +43,7 @@ FORMAT_VERSION = 1
 MODEL_FILE, CONFIG_FILE, MANIFEST_FILE = "model.safetensors", "config.yaml", "manifest.json"
 TRAINER_FILE, REWARD_FILE, REPLAY_FILE = "trainer_state.safetensors", "reward_buffer.safetensors", "replay_buffer.safetensors"
 REWARD_KEYS = ("next_obs", "qpos", "qvel")
+STATE_KEYS = ("qpos", "qvel")
 _META_KEY = "fbcpr_json"
 #: The pointer files a run's checkpoints folder may hold: each names one checkpoint folder beside it.
 POINTERS = ("latest", "best")
@@ -78,14 +80,28 @@ class Checkpoint:
         return read_tensors(self.path, TRAINER_FILE, self.manifest)
 
     def reward_buffer(self) -> dict[str, np.ndarray] | None:
-        """The reward-inference buffer (next_obs, qpos, qvel) as numpy arrays, or None if absent."""
+        """The reward-inference buffer (next_obs, qpos, qvel) as numpy arrays, or None if absent; next_obs is
+        rebuilt from the states when the file stores states only."""
         if not self.has(REWARD_FILE):
             return None
         tensors, _ = read_tensors(self.path, REWARD_FILE, self.manifest)
-        missing = [k for k in REWARD_KEYS if k not in tensors]
+        states_only = "next_obs" not in tensors
+        missing = [k for k in (STATE_KEYS if states_only else REWARD_KEYS) if k not in tensors]
         if missing:
             raise CheckpointError(f"{self.path / REWARD_FILE}: missing tensors {missing}")
-        return {k: tensors[k].float().numpy() for k in REWARD_KEYS}  # compact exports store float16
+        buf = {k: tensors[k].float().numpy() for k in STATE_KEYS}  # compact exports store float16
+        if not states_only:
+            return {"next_obs": tensors["next_obs"].float().numpy(), **buf}
+        from fbcpr.envs import state_observer  # lazy: the env's kinematics only for states-only samples
+
+        observer = state_observer(self.config.env.name if isinstance(self.config, Config) else "humanoid")
+        if buf["qpos"].ndim != 2 or buf["qvel"].ndim != 2 or len(buf["qpos"]) != len(buf["qvel"]):
+            raise CheckpointError(f"{self.path / REWARD_FILE}: qpos {tuple(buf['qpos'].shape)} and qvel "
+                                  f"{tuple(buf['qvel'].shape)} are not one row per state")
+        try:
+            return {"next_obs": observer(buf["qpos"], buf["qvel"]), **buf}
+        except ValueError as e:  # a state of the wrong width for the env
+            raise CheckpointError(f"{self.path / REWARD_FILE}: {e}") from None
 
     def replay_buffer(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]] | None:
         return read_tensors(self.path, REPLAY_FILE, self.manifest) if self.has(REPLAY_FILE) else None
@@ -172,10 +188,12 @@ def save_checkpoint(
     reward_buffer: dict[str, np.ndarray | torch.Tensor] | None = None,
     replay_buffer: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
     reward_dtype: torch.dtype = torch.float32,
+    reward_obs: bool = True,
 ) -> Path:
     """Write a checkpoint directory at `path` atomically (replacing any checkpoint already there).
 
-    `reward_dtype=torch.float16` halves the reward-inference buffer, for checkpoints that ship."""
+    `reward_dtype=torch.float16` halves the reward-inference buffer and `reward_obs=False` stores its states
+    without their observations (rebuilt on load), for checkpoints that ship."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
@@ -194,7 +212,8 @@ def save_checkpoint(
             missing = [k for k in REWARD_KEYS if k not in reward_buffer]
             if missing:
                 raise CheckpointError(f"reward_buffer: missing arrays {missing}")
-            arrays = {k: torch.as_tensor(np.asarray(reward_buffer[k])).to(reward_dtype) for k in REWARD_KEYS}
+            keys = REWARD_KEYS if reward_obs else STATE_KEYS
+            arrays = {k: torch.as_tensor(np.asarray(reward_buffer[k])).to(reward_dtype) for k in keys}
             finite = torch.stack([torch.isfinite(v.reshape(len(v), -1)).all(1) for v in arrays.values()]).all(0)
             put(REWARD_FILE, {k: v[finite] for k, v in arrays.items()})  # one inf row would break every reward prompt
         if replay_buffer is not None:

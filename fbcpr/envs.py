@@ -42,6 +42,42 @@ class EnvBundle:
     task_reward: Callable[[str], TaskReward]              # registry task name -> reward of (next_obs, qpos, qvel)
 
 
+#: Observations of states: (qpos (N, nq), qvel (N, nv)) -> next_obs (N, obs_dim) float32.
+StateObserver = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def state_observer(env_name: str) -> StateObserver:
+    """The env's observation as a function of the state (both envs observe their state alone, by kinematics).
+
+    With it a reward-inference sample can ship as states only (its observations are rebuilt on load, a third of
+    the size), and a sample's rows can be checked to be single transitions (`inconsistent_rows`)."""
+    if env_name == "toy":
+        return lambda qpos, qvel: np.asarray(qpos, dtype=np.float32)  # the toy observes its position
+    from humanoid_env.model import load_model
+    from humanoid_env.observation import observe
+
+    model = load_model()
+
+    def humanoid(qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        qpos = np.array(qpos, dtype=np.float64)
+        qpos[:, 3:7] /= np.linalg.norm(qpos[:, 3:7], axis=1, keepdims=True)  # float16 storage denormalises it
+        return observe(model, qpos, qvel)
+
+    return humanoid
+
+
+def inconsistent_rows(buf: dict[str, np.ndarray], env_name: str, rows: int = 64) -> float:
+    """Share of the first `rows` rows whose next_obs is not the observation of their own (qpos, qvel), to float16
+    precision (0.0 for an empty sample). Rows mixed across transitions score about 1.0."""
+    n = min(rows, len(buf["qpos"]))
+    if n == 0:
+        return 0.0
+    rebuilt = state_observer(env_name)(buf["qpos"][:n], buf["qvel"][:n])
+    stored = np.asarray(buf["next_obs"][:n], dtype=np.float32)
+    ok = np.isclose(rebuilt, stored, rtol=0.02, atol=0.02).all(axis=1)
+    return float(1.0 - ok.mean())
+
+
 def make_env(cfg: EnvConfig, num_envs: int, seed: int, threads: int | None = None) -> EnvBundle:
     """Build the configured environment (`humanoid` or `toy`) with `num_envs` parallel copies, stepped on `threads`
     threads (None: all cores; data-parallel ranks on one machine share them). With `env.npmp`, the agent acts in

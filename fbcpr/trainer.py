@@ -53,7 +53,7 @@ from fbcpr.checkpoint import (
 )
 from fbcpr import distributed
 from fbcpr.config import Config, ConfigError, TrainConfig
-from fbcpr.envs import EnvBundle, make_env, tracking_scores
+from fbcpr.envs import EnvBundle, inconsistent_rows, make_env, tracking_scores
 from fbcpr.evaluation.metrics import EMDUnavailable
 from fbcpr.methods import get_method
 from fbcpr.protocols import OnlineAgent
@@ -596,7 +596,11 @@ class Trainer:
         if self.cfg.train.save_buffer:
             raise CheckpointError(f"{ckpt.path}: train.save_buffer is set but the checkpoint has no replay buffer")
         self._carried = ckpt.reward_buffer()
-        if self._carried is None:
+        if self._carried is not None and inconsistent_rows(self._carried, self.cfg.env.name) > 0.5:
+            self._carried = None
+            lost = ("its reward-inference sample is dropped: its rows mix different transitions (saved by a resume "
+                    "before this was checked), so reward prompts will only see the new transitions")
+        elif self._carried is None:
             lost = "it has no reward-inference sample either: reward prompts will only see the new transitions"
         else:
             self._carried_weight = int(meta.get("reward_represents", meta["buffer"]["size"]))

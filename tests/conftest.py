@@ -29,3 +29,20 @@ def two_clips(tmp_path_factory):
     for clip in (synthetic.stand(1.0), synthetic.tpose(1.0)):
         save_clip(clip, folder / f"{clip.name}.npz")
     return folder
+
+
+def humanoid_states(n: int, seed: int, drop: tuple[float, float] = (-0.8, 0.3)) -> dict:
+    """n standing-ish random humanoid states and their observations, row by row: a stand-in for a reward-inference
+    buffer (whose rows must each be one state's, as loading checks)."""
+    import numpy as np
+
+    from humanoid_env.model import NV, load_model
+    from humanoid_env.observation import observe
+
+    m = load_model()
+    rng = np.random.default_rng(seed)
+    qpos = np.tile(m.qpos0, (n, 1))
+    qpos[:, 7:] = np.clip(rng.normal(0.0, 0.3, (n, 69)), m.jnt_range[1:, 0], m.jnt_range[1:, 1])
+    qpos[:, 2] += rng.uniform(*drop, n)
+    qvel = rng.normal(0.0, 1.0, (n, NV))
+    return {"next_obs": observe(m, qpos, qvel), "qpos": qpos, "qvel": qvel}

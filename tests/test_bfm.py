@@ -13,6 +13,7 @@ import pytest
 import torch
 import yaml
 
+from conftest import humanoid_states
 from fbcpr import BFM
 from fbcpr.checkpoint import CheckpointError, save_checkpoint
 from fbcpr.config import config_from_dict
@@ -30,7 +31,7 @@ def ckpt(tmp_path_factory) -> Path:
     model = FBCPRModel(cfg.model)
     rng = np.random.default_rng(0)
     model.obs_normalizer.update(torch.as_tensor(rng.normal(size=(64, 358))))
-    buf = {"next_obs": rng.normal(size=(32, 358)), "qpos": rng.normal(size=(32, 76)), "qvel": rng.normal(size=(32, 75))}
+    buf = humanoid_states(32, seed=0)
     return save_checkpoint(tmp_path_factory.mktemp("ckpt") / "tiny", model, cfg, reward_buffer=buf)
 
 
@@ -101,6 +102,7 @@ def test_act_rejects_nan(bfm):
     ("next_obs", np.zeros((32, 357)), r"next_obs has shape \(32, 357\), expected \(32, 358\)"),
     ("next_obs", np.zeros((0, 358)), "next_obs has shape"),
     ("qvel", np.full((32, 75), np.nan), "qvel contains NaN"),
+    ("qpos", np.roll(humanoid_states(32, seed=0)["qpos"], 1, axis=0), "not the observations of its qpos/qvel"),
 ])
 def test_malformed_reward_buffer_is_named(bfm, key, value, match):
     buf = {**bfm.reward_buffer, key: value}
@@ -109,6 +111,18 @@ def test_malformed_reward_buffer_is_named(bfm, key, value, match):
     bad = BFM(bfm.model, bfm.config, reward_buffer=buf)
     with pytest.raises(CheckpointError, match=match):
         bad.prompt.reward("jump-2")
+
+
+def test_states_only_save_rebuilds_the_observations_and_prompts_alike(bfm, tmp_path):
+    full, small = bfm.save(tmp_path / "full", half=True), bfm.save(tmp_path / "small", half=True, states_only=True)
+    size = lambda p: (p / "reward_buffer.safetensors").stat().st_size  # noqa: E731
+    assert size(small) < 0.45 * size(full)  # 151 of 509 values per state
+    again = BFM.load(small)
+    buf, orig = again.reward_buffer, bfm.reward_buffer
+    assert buf["next_obs"].dtype == np.float32 and buf["next_obs"].shape == orig["next_obs"].shape
+    np.testing.assert_allclose(buf["next_obs"], orig["next_obs"], atol=0.05, rtol=0.01)  # from float16 states
+    z_small, z_full = again.prompt.reward("move-ego-0-0"), BFM.load(full).prompt.reward("move-ego-0-0")
+    assert z_small @ z_full / (np.linalg.norm(z_small) * np.linalg.norm(z_full)) > 0.999
 
 
 def test_save_and_load_round_trip(bfm, tmp_path):

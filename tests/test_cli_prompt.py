@@ -13,12 +13,12 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from conftest import humanoid_states
 from fbcpr.checkpoint import save_checkpoint
 from fbcpr.cli.app import app
 from fbcpr.config import config_from_dict
 from fbcpr.fb_cpr.model import FBCPRModel
-from humanoid_env.model import NV, load_model
-from humanoid_env.observation import observe
+from humanoid_env.model import load_model
 from humanoid_env.render import renderer_available
 from motions.clip import from_qpos, save_clip
 
@@ -31,16 +31,9 @@ def ckpt(tmp_path_factory) -> Path:
     torch.manual_seed(0)
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
                             "agent": {"seq_length": 4, "batch_size": 8}})
-    m = load_model()
-    rng = np.random.default_rng(0)
-    qpos = np.tile(m.qpos0, (64, 1))
-    qpos[:, 7:] = np.clip(rng.normal(0.0, 0.3, (64, 69)), m.jnt_range[1:, 0], m.jnt_range[1:, 1])
-    qpos[:, 2] += rng.uniform(-0.8, 0.5, 64)
-    qvel = rng.normal(0.0, 1.0, (64, NV))
-    obs = observe(m, qpos, qvel)
+    buf = humanoid_states(64, seed=0, drop=(-0.8, 0.5))
     model = FBCPRModel(cfg.model)
-    model.obs_normalizer.update(torch.as_tensor(obs))
-    buf = {"next_obs": obs, "qpos": qpos, "qvel": qvel}
+    model.obs_normalizer.update(torch.as_tensor(buf["next_obs"]))
     return save_checkpoint(tmp_path_factory.mktemp("cli") / "tiny", model, cfg, reward_buffer=buf)
 
 

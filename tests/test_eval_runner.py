@@ -147,9 +147,9 @@ def test_cli_eval_on_a_tiny_checkpoint(tmp_path):
     torch.manual_seed(0)
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
                             "agent": {"seq_length": 4, "batch_size": 8}})
-    rng = np.random.default_rng(0)
-    states = np.stack([goal_obs(g) for g in ("a_pose", "t_pose", "crouch_low", "lie_back")] * 4)
-    buf = {"next_obs": states, "qpos": rng.normal(size=(16, 76)), "qvel": rng.normal(size=(16, 75))}
+    poses = ("a_pose", "t_pose", "crouch_low", "lie_back") * 4
+    buf = {"next_obs": np.stack([goal_obs(g) for g in poses]), "qpos": np.stack([goal_qpos(g) for g in poses]),
+           "qvel": np.zeros((16, 75))}
     ckpt = save_checkpoint(tmp_path / "tiny", FBCPRModel(cfg.model), cfg, reward_buffer=buf)
     app = typer.Typer()
     app.callback()(lambda: None)

@@ -10,7 +10,7 @@ import torch
 from typer.testing import CliRunner
 
 from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.checkpoint import load_checkpoint
+from fbcpr.checkpoint import load_checkpoint, save_checkpoint
 from fbcpr.config import config_from_dict, dump_config
 from fbcpr.toy import pointmass as pm
 from fbcpr.trainer import Trainer
@@ -176,6 +176,20 @@ def test_resume_without_replay_buffer_keeps_the_reward_sample(tmp_path, capsys):
     assert len(final["next_obs"]) == 300
     for buf in (after, final):  # a subsampled carry keeps each row one transition (the toy observes obs = qpos)
         np.testing.assert_array_equal(buf["next_obs"], buf["qpos"])
+
+
+def test_resume_drops_a_reward_sample_whose_rows_mix_transitions(tmp_path, capsys):
+    cfg = dict(save_buffer=False, reward_buffer_size=300)
+    path = Trainer(tiny_cfg(**cfg), tmp_path, progress=False).run(max_env_steps=160)["checkpoint"]
+    ckpt = load_checkpoint(path)
+    mixed = ckpt.reward_buffer()
+    mixed["qpos"] = np.roll(mixed["qpos"], 1, axis=0)  # as resumes before the fix saved them
+    save_checkpoint(path, ckpt.model, ckpt.config, trainer_state=ckpt.trainer_state(), reward_buffer=mixed)
+    tr = Trainer(tiny_cfg(**cfg), tmp_path, resume=True, progress=False)
+    assert "reward-inference sample is dropped" in capsys.readouterr().err
+    after = load_checkpoint(tr.run(max_env_steps=40)["checkpoint"]).reward_buffer()
+    assert len(after["next_obs"]) == 40  # the new transitions only
+    np.testing.assert_array_equal(after["next_obs"], after["qpos"])
 
 
 def test_resume_without_replay_buffer_refills_before_updating(tmp_path):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import humanoid_states
 from fbcpr import BFM
 from fbcpr.checkpoint import save_checkpoint
 from fbcpr.config import config_from_dict
@@ -20,8 +21,7 @@ spec.loader.exec_module(pack)
 def run_dir(tmp_path):
     """A run dir whose latest checkpoint has a tiny humanoid model and 3000 reward states."""
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69}})
-    rng = np.random.default_rng(0)
-    buf = {"next_obs": rng.normal(size=(3000, 358)), "qpos": rng.normal(size=(3000, 76)), "qvel": rng.normal(size=(3000, 75))}
+    buf = humanoid_states(3000, seed=0)
     root = tmp_path / "run" / "checkpoints"
     save_checkpoint(root / "step_0000000100", FBCPRModel(cfg.model), cfg, reward_buffer=buf)
     (root / "latest").write_text("step_0000000100")

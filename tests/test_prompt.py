@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import humanoid_states
 from fbcpr.bfm import BFM
 from fbcpr.config import config_from_dict
 from fbcpr.fb_cpr.model import FBCPRModel
@@ -19,26 +20,15 @@ torch.set_num_threads(1)
 SEQ = 4
 
 
-def random_states(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Standing-ish random states and their observations (a stand-in for a replay buffer)."""
-    rng = np.random.default_rng(seed)
-    m = load_model()
-    qpos = np.tile(m.qpos0, (n, 1))
-    qpos[:, 7:] = np.clip(rng.normal(0.0, 0.3, (n, 69)), m.jnt_range[1:, 0], m.jnt_range[1:, 1])
-    qpos[:, 2] += rng.uniform(-0.8, 0.3, n)
-    qvel = rng.normal(0.0, 1.0, (n, NV))
-    return observe(m, qpos, qvel), qpos, qvel
-
-
 @pytest.fixture(scope="module")
 def bfm() -> BFM:
     torch.manual_seed(0)
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
                             "agent": {"seq_length": SEQ, "batch_size": 8}})
     model = FBCPRModel(cfg.model)
-    obs, qpos, qvel = random_states(200, seed=1)
-    model.obs_normalizer.update(torch.as_tensor(obs))  # non-trivial normalization, as after training
-    return BFM(model, cfg, reward_buffer={"next_obs": obs, "qpos": qpos, "qvel": qvel})
+    states = humanoid_states(200, seed=1)
+    model.obs_normalizer.update(torch.as_tensor(states["next_obs"]))  # non-trivial normalization, as after training
+    return BFM(model, cfg, reward_buffer=states)
 
 
 def b_by_hand(bfm: BFM, obs: np.ndarray) -> np.ndarray:
@@ -63,7 +53,7 @@ def test_goal_z_is_normalized_b_of_goal(bfm):
 
 
 def test_tracking_z_is_the_windowed_mean(bfm):
-    obs = random_states(11, seed=2)[0]
+    obs = humanoid_states(11, seed=2)["next_obs"]
     zs = bfm.prompt.track(obs)
     b = b_by_hand(bfm, obs)
     assert zs.shape == (10, bfm.z_dim)
@@ -74,7 +64,7 @@ def test_tracking_z_is_the_windowed_mean(bfm):
 
 
 def test_imitate_is_er_fb_of_the_whole_clip(bfm):
-    obs = random_states(7, seed=3)[0]
+    obs = humanoid_states(7, seed=3)["next_obs"]
     np.testing.assert_allclose(bfm.prompt.imitate(obs), sphere(b_by_hand(bfm, obs).mean(0)), rtol=1e-4, atol=1e-4)
 
 
