@@ -2,6 +2,10 @@
 paper-S sized model on CPU, each next to a plain torch reference measured in the same run.
 
     python benchmarks/prompt_speed.py [--n 100000] [--preset paper-S] [--threads 0] [--act-calls 2000]
+        [--checkpoint pretrained --checkpoint RUN/checkpoints/step_...]
+
+`--checkpoint` also times a saved model from disk to its first reward prompt: loading, B over its whole
+reward sample and, for a sample stored as states only (`fbcpr export`), rebuilding the observations first.
 
 Targets (issue 6): a reward prompt in <= 2 s (the paper reports about 10 s for this step), act() <= 2 ms.
 The model is untrained (timing does not depend on the weights); the reward-inference buffer holds real
@@ -67,6 +71,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     parser.add_argument("--act-calls", type=int, default=2000)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--checkpoint", action="append", default=[], help="also time load + first reward prompt")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -94,6 +99,12 @@ def main() -> None:
         warm = timed(lambda: bfm.prompt.reward(task), args.repeats)  # B cached by the model: relabel + regression
         print(f"  {task:46s} {cold * 1e3:8.1f} ms cold, {warm * 1e3:7.1f} ms with B cached  "
               f"({cold / ref:5.1f}x the matmul)")
+
+    for ckpt in args.checkpoint:
+        first = timed(lambda: BFM.load(ckpt).prompt.reward(TASKS[0]), args.repeats)
+        states = len(BFM.load(ckpt).reward_buffer["qpos"])
+        print(f"  {f'{ckpt}: load + first {TASKS[0]}':46s} {first * 1e3:8.1f} ms ({states} states, "
+              f"{first / ref:5.1f}x the matmul)")
 
     # --- act latency ------------------------------------------------------------------------------------
     obs = buf["next_obs"][0]

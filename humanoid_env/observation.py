@@ -85,11 +85,16 @@ def assemble(xpos: np.ndarray, xmat: np.ndarray, cvel: np.ndarray, com: np.ndarr
     return out
 
 
-def read_kinematics(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, ...]:
-    """Run the kinematic passes on data's (qpos, qvel) and copy what `assemble` needs."""
+def kinematic_passes(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    """The passes that fill what `assemble` reads (body poses, com frames, com velocities) from (qpos, qvel)."""
     mujoco.mj_kinematics(model, data)
     mujoco.mj_comPos(model, data)
     mujoco.mj_comVel(model, data)
+
+
+def read_kinematics(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, ...]:
+    """Run the kinematic passes on data's (qpos, qvel) and copy what `assemble` needs."""
+    kinematic_passes(model, data)
     return data.xpos[1:].copy(), data.xmat[1:].reshape(-1, 3, 3).copy(), data.cvel[1:].copy(), data.subtree_com[1].copy()
 
 
@@ -110,11 +115,12 @@ def observe(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, data: muj
     n = qp.shape[0]
     d = data if data is not None else mujoco.MjData(model)
     xpos = np.empty((n, N_BODIES, 3))
-    xmat = np.empty((n, N_BODIES, 3, 3))
+    xmat = np.empty((n, N_BODIES, 9))
     cvel = np.empty((n, N_BODIES, 6))
     com = np.empty((n, 3))
-    for i in range(n):
+    for i in range(n):  # written straight into the batch arrays: rebuilding a 50k-state reward sample is this loop
         d.qpos[:] = qp[i]
         d.qvel[:] = qv[i]
-        xpos[i], xmat[i], cvel[i], com[i] = read_kinematics(model, d)
-    return assemble(xpos, xmat, cvel, com).reshape(batch + (OBS_DIM,))
+        kinematic_passes(model, d)
+        xpos[i], xmat[i], cvel[i], com[i] = d.xpos[1:], d.xmat[1:], d.cvel[1:], d.subtree_com[1]
+    return assemble(xpos, xmat.reshape(n, N_BODIES, 3, 3), cvel, com).reshape(batch + (OBS_DIM,))
