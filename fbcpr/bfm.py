@@ -309,7 +309,7 @@ def check_reward_buffer(buf: dict[str, np.ndarray], obs_dim: int, env_name: str)
         raise CheckpointError("reward-inference buffer: its next_obs rows are not the observations of its qpos/qvel "
                               "rows, so reward prompts would pair one state's reward with another's embedding (runs "
                               "resumed before this was checked mixed them). Refresh it: resume the run with "
-                              "--more-steps and train.warmup_steps of the same size (docs/usage.md)")
+                              "--more-steps N and train.warmup_steps above N (docs/usage.md)")
 
 
 def _all_finite(x: torch.Tensor) -> bool:

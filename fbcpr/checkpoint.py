@@ -44,6 +44,8 @@ MODEL_FILE, CONFIG_FILE, MANIFEST_FILE = "model.safetensors", "config.yaml", "ma
 TRAINER_FILE, REWARD_FILE, REPLAY_FILE = "trainer_state.safetensors", "reward_buffer.safetensors", "replay_buffer.safetensors"
 REWARD_KEYS = ("next_obs", "qpos", "qvel")
 STATE_KEYS = ("qpos", "qvel")
+#: Most states a states-only reward sample may hold: loading rebuilds each one's observation (~25 µs a state).
+MAX_REBUILT_STATES = 500_000
 _META_KEY = "fbcpr_json"
 #: The pointer files a run's checkpoints folder may hold: each names one checkpoint folder beside it.
 POINTERS = ("latest", "best")
@@ -98,6 +100,9 @@ class Checkpoint:
         if buf["qpos"].ndim != 2 or buf["qvel"].ndim != 2 or len(buf["qpos"]) != len(buf["qvel"]):
             raise CheckpointError(f"{self.path / REWARD_FILE}: qpos {tuple(buf['qpos'].shape)} and qvel "
                                   f"{tuple(buf['qvel'].shape)} are not one row per state")
+        if len(buf["qpos"]) > MAX_REBUILT_STATES:
+            raise CheckpointError(f"{self.path / REWARD_FILE}: {len(buf['qpos']):,} states without observations; "
+                                  f"loading rebuilds at most {MAX_REBUILT_STATES:,} (export fewer: --reward-samples)")
         try:
             return {"next_obs": observer(buf["qpos"], buf["qvel"]), **buf}
         except ValueError as e:  # a state of the wrong width for the env

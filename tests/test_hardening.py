@@ -385,6 +385,33 @@ def test_buffer_drops_and_counts_non_finite_rows():
     assert all(np.isfinite(v[: len(buf)]).all() for v in buf.data.values())
 
 
+def test_states_only_reward_samples_that_cannot_be_rebuilt_are_named(tmp_path, monkeypatch):
+    from conftest import humanoid_states
+    from fbcpr import BFM, checkpoint
+    from fbcpr.config import config_from_dict
+    from fbcpr.fb_cpr.model import FBCPRModel
+
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69}})
+    model, states = FBCPRModel(cfg.model), humanoid_states(8, seed=0)
+
+    def saved(name: str, **change: np.ndarray):
+        buf = {**states, **change}
+        path = checkpoint.save_checkpoint(tmp_path / name, model, cfg, reward_buffer=buf, reward_obs=False)
+        return BFM.load(path)
+
+    assert saved("ok").reward_buffer["next_obs"].shape == (8, 358)  # rebuilt on load
+    monkeypatch.setattr(checkpoint, "MAX_REBUILT_STATES", 7)
+    with pytest.raises(checkpoint.CheckpointError, match="8 states without observations; loading rebuilds at most 7"):
+        saved("ok").reward_buffer
+    monkeypatch.undo()
+    with pytest.raises(checkpoint.CheckpointError, match="reward_buffer.safetensors: .*qpos"):
+        saved("narrow", qpos=states["qpos"][:, :70]).reward_buffer
+    zero_quat = states["qpos"].copy()
+    zero_quat[2, 3:7] = 0.0  # no orientation: its observation cannot be rebuilt
+    with np.errstate(invalid="ignore", divide="ignore"), pytest.raises(checkpoint.CheckpointError, match="NaN"):
+        saved("zero-quaternion", qpos=zero_quat).prompt.reward("move-ego-0-0")
+
+
 def test_checkpoint_reward_buffer_is_filtered_on_save(tmp_path):
     import torch
 
