@@ -52,7 +52,9 @@ def state_observer(env_name: str) -> StateObserver:
     With it a reward-inference sample can ship as states only (its observations are rebuilt on load, a third of
     the size), and a sample's rows can be checked to be single transitions (`inconsistent_rows`)."""
     if env_name == "toy":
-        return lambda qpos, qvel: np.asarray(qpos, dtype=np.float32)  # the toy observes its position
+        from fbcpr.toy.pointmass import observe as toy_observe
+
+        return toy_observe
     from humanoid_env.model import load_model
     from humanoid_env.observation import observe
 

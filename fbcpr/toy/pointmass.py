@@ -46,6 +46,11 @@ def get_task(name: str) -> ToyReward:
     return TASKS[name]
 
 
+def observe(qpos: np.ndarray, qvel: np.ndarray | None = None) -> np.ndarray:
+    """The observation of states: the position (qvel is not observed)."""
+    return np.asarray(qpos, dtype=np.float32)
+
+
 def dynamics(qpos: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One batched step: new positions and the displacements actually made."""
     p = np.clip(qpos + STEP * np.clip(action, -1.0, 1.0), -1.0, 1.0)
@@ -95,7 +100,7 @@ class PointMassVectorEnv(VectorEnv):
         self.steps = np.zeros(num_envs, dtype=np.int64)
 
     def _obs(self) -> np.ndarray:
-        return self.qpos.astype(np.float32)
+        return observe(self.qpos)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         if seed is not None:
