@@ -136,6 +136,9 @@ class EnvConfig:
     # ... and end it as a termination instead: lying fallen becomes an absorbing state worth 0, which changes the
     # objective (single-task agents on rewards >= 0 then value staying up; lying-down tasks become unlearnable)
     fallen_terminates: bool = _f(False)
+    # ... and start that clock only once the pelvis has been above 0.6 m for reset_fallen_s in a row in this
+    # episode: a fall start (which is dropped from up to 1 m and lies at once) keeps its whole episode to get up
+    reset_fallen_once_up: bool = _f(False)
     # reuse (fbcpr.npmp.reuse): an NPMP checkpoint whose frozen decoder turns actions in its latent space into the
     # env's actions; the agent then acts with the AR(1) prior's innovation eps = npmp_innovation_scale * a
     npmp: str | None = _f(None)
@@ -160,7 +163,8 @@ class TrainConfig:
     priority_max_clips: int = _f(256, _range(1, 10**6))
     eval_every: int = _f(0, NON_NEGATIVE)
     # humanoid: each evaluation also measures the median seconds upright under the stand prompt over this many
-    # standing and pushed standing starts (eval/upright_s, eval/upright_pushed_s; fbcpr.evaluation.upright)
+    # standing and pushed standing starts (eval/upright_s, eval/upright_pushed_s) and the share of as many fall
+    # starts that got up (eval/got_up; fbcpr.evaluation.upright)
     eval_upright: int = _f(0, _range(0, 4096))
     # humanoid: each evaluation also rolls out these reward tasks and goal poses (names as `fbcpr eval --tasks`)
     # for eval_episodes episodes from the same test starts every time, and logs eval/return/<task>,
@@ -296,8 +300,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if cfg.env.fall_prob + cfg.env.stand_prob > 1.0 + 1e-9:
         raise ConfigError(f"env.stand_prob: env.fall_prob + env.stand_prob must be <= 1, got "
                           f"{cfg.env.fall_prob} + {cfg.env.stand_prob}")
-    if cfg.env.fallen_terminates and not cfg.env.reset_fallen_s:
-        raise ConfigError("env.fallen_terminates: needs env.reset_fallen_s > 0 (how long fallen ends an episode)")
+    for key in ("fallen_terminates", "reset_fallen_once_up"):
+        if getattr(cfg.env, key) and not cfg.env.reset_fallen_s:
+            raise ConfigError(f"env.{key}: needs env.reset_fallen_s > 0 (how long fallen ends an episode)")
     tc = cfg.train
     for key in ("eval_upright", "eval_tasks"):  # the policy evaluations prompt the humanoid at each evaluation
         if not getattr(tc, key):

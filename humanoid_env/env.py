@@ -105,6 +105,7 @@ class HumanoidEnv(gym.Env):
         action_mapping: str = DEFAULT_ACTION_MAPPING,
         reset_fallen_after: int = 0,
         fallen_terminates: bool = False,
+        reset_fallen_once_up: bool = False,
     ) -> None:
         if render_mode not in (None, "rgb_array"):
             raise EnvError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -120,6 +121,7 @@ class HumanoidEnv(gym.Env):
         self.max_episode_steps = int(max_episode_steps)
         self.reset_fallen_after = check_reset_fallen(reset_fallen_after)
         self.fallen_terminates = bool(fallen_terminates)
+        self.reset_fallen_once_up = bool(reset_fallen_once_up)
         self.max_qvel = float(max_qvel)
         self.render_mode = render_mode
         self._size = (height, width)
@@ -130,8 +132,8 @@ class HumanoidEnv(gym.Env):
         self._act = np.empty(NU)
         self._obs = np.zeros(OBS_DIM, np.float32)
         self._good_qpos, self._good_qvel = self.data.qpos.copy(), self.data.qvel.copy()
-        self._steps = 0
-        self._fallen_steps = 0
+        self._steps = self._fallen_steps = self._up_steps = 0
+        self._armed = False
 
     def _observe(self) -> np.ndarray:
         xpos, xmat, cvel, com = read_kinematics(self.model, self.data)
@@ -156,7 +158,8 @@ class HumanoidEnv(gym.Env):
         self.data.qvel[:] = qvel
         self.data.time = EPISODE_START_TIME
         mujoco.mj_forward(self.model, self.data)
-        self._steps = self._fallen_steps = 0
+        self._steps = self._fallen_steps = self._up_steps = 0
+        self._armed = False
         obs = self._observe()
         if not np.isfinite(obs).all():
             raise InvalidStateError("reset: the state's observation is not finite (qpos/qvel beyond float32 range?)")
@@ -187,8 +190,10 @@ class HumanoidEnv(gym.Env):
                 reward = float(self.reward_fn(obs[None], self._act[None].astype(np.float32), info["qpos"][None], info["qvel"][None])[0])
             if self.termination_fn is not None:
                 terminated = bool(self.termination_fn(obs[None], info["qpos"][None], info["qvel"][None])[0])
-        self._fallen_steps = self._fallen_steps + 1 if info["qpos"][2] < FALLEN_HEIGHT else 0
-        lain = 0 < self.reset_fallen_after <= self._fallen_steps
+        low = info["qpos"][2] < FALLEN_HEIGHT
+        self._fallen_steps, self._up_steps = (self._fallen_steps + 1, 0) if low else (0, self._up_steps + 1)
+        self._armed = self._armed or 0 < self.reset_fallen_after <= self._up_steps
+        lain = 0 < self.reset_fallen_after <= self._fallen_steps and (self._armed or not self.reset_fallen_once_up)
         terminated = terminated or (lain and self.fallen_terminates)
         truncated = self._steps >= self.max_episode_steps or (lain and not self.fallen_terminates)
         return obs, reward, terminated, truncated, info

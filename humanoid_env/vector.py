@@ -57,6 +57,7 @@ class VectorHumanoidEnv(VectorEnv):
         action_mapping: str = DEFAULT_ACTION_MAPPING,
         reset_fallen_after: int = 0,
         fallen_terminates: bool = False,
+        reset_fallen_once_up: bool = False,
     ) -> None:
         if num_envs < 1:
             raise EnvError(f"num_envs must be >= 1, got {num_envs}")
@@ -74,6 +75,7 @@ class VectorHumanoidEnv(VectorEnv):
         self.max_episode_steps = int(max_episode_steps)
         self.reset_fallen_after = check_reset_fallen(reset_fallen_after)
         self.fallen_terminates = bool(fallen_terminates)
+        self.reset_fallen_once_up = bool(reset_fallen_once_up)
         self.max_qvel = float(max_qvel)
         self.render_mode = None
         self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
@@ -91,6 +93,8 @@ class VectorHumanoidEnv(VectorEnv):
         self._good_qpos, self._good_qvel = self._qpos.copy(), self._qvel.copy()
         self._steps = np.zeros(self.num_envs, np.int64)
         self._fallen_steps = np.zeros(self.num_envs, np.int64)
+        self._up_steps = np.zeros(self.num_envs, np.int64)
+        self._armed = np.zeros(self.num_envs, bool)
         self._np_random, self._np_random_seed = seeding.np_random(None)
 
     def _observe(self, ids: np.ndarray | None = None) -> np.ndarray:
@@ -114,7 +118,8 @@ class VectorHumanoidEnv(VectorEnv):
         self._obs[ids] = obs
         self._good_qpos[ids], self._good_qvel[ids] = qpos, qvel
         self._steps[ids] = 0
-        self._fallen_steps[ids] = 0
+        self._fallen_steps[ids] = self._up_steps[ids] = 0
+        self._armed[ids] = False
 
     def _sample(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         qpos, qvel = self.init.sample(self.np_random, k)
@@ -164,10 +169,15 @@ class VectorHumanoidEnv(VectorEnv):
         if self.termination_fn is not None:
             terminated |= np.asarray(self.termination_fn(obs, qpos, qvel), dtype=bool).reshape(self.num_envs)
         self._steps += 1
-        self._fallen_steps = np.where(qpos[:, 2] < FALLEN_HEIGHT, self._fallen_steps + 1, 0)
+        low = qpos[:, 2] < FALLEN_HEIGHT
+        self._fallen_steps = np.where(low, self._fallen_steps + 1, 0)
+        self._up_steps = np.where(low, 0, self._up_steps + 1)
         truncated = self._steps >= self.max_episode_steps
         if self.reset_fallen_after:
+            self._armed |= self._up_steps >= self.reset_fallen_after
             lain = self._fallen_steps >= self.reset_fallen_after
+            if self.reset_fallen_once_up:
+                lain &= self._armed
             if self.fallen_terminates:
                 terminated |= lain
             else:

@@ -23,6 +23,7 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
     ({"env": {"reset_fallen_s": -1.0}}, "env.reset_fallen_s"),
     ({"env": {"name": "toy", "reset_fallen_s": 1.0}}, "env.reset_fallen_s"),  # only the humanoid falls
     ({"env": {"fallen_terminates": True}}, "env.fallen_terminates"),          # without reset_fallen_s
+    ({"env": {"reset_fallen_once_up": True}}, "env.reset_fallen_once_up"),    # without reset_fallen_s
     ({"env": {"fall_prob": 0.5, "stand_prob": 0.6}}, "env.stand_prob"),      # probabilities beyond 1
     ({"train": {"device": "tpu"}}, "train.device"),
     ({"train": {"lr": float("nan")}}, "train.lr"),

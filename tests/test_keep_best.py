@@ -101,6 +101,8 @@ def test_humanoid_runs_log_upright_seconds_and_keep_the_best(tmp_path, two_clips
     for key in ("eval/upright_s", "eval/upright_pushed_s"):
         values = [v for _, v in logged(tmp_path, key)]
         assert len(values) == 3 and all(0 < v <= steps / 30 for v in values), (key, values)
+    got_up = [v for _, v in logged(tmp_path, "eval/got_up")]
+    assert len(got_up) == 3 and all(v in (0.0, 0.5, 1.0) for v in got_up)  # a share of the 2 fall starts
     # a fresh start stands the 6 steps: the first evaluation is the best, and later ties do not replace it
     pushed = logged(tmp_path, "eval/upright_pushed_s")
     top = max(v for _, v in pushed)

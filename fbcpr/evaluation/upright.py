@@ -64,14 +64,20 @@ def seconds_upright(heights: np.ndarray) -> np.ndarray:
     return np.where(fallen.any(0), fallen.argmax(0), heights.shape[0]) / CONTROL_HZ
 
 
+def got_up(heights: np.ndarray) -> np.ndarray:
+    """Per episode, whether the pelvis stayed above `STANDING` over the whole last second."""
+    return (heights[-CONTROL_HZ:] > STANDING).all(0)
+
+
 def upright_medians(agent: Any, episodes: int, steps: int = EPISODE_STEPS, seed: int = 0) -> dict[str, float]:
     """What a training run logs at each evaluation (`train.eval_upright`): median seconds upright under the stand
     prompt from standing starts (`upright_s`, which the zero action holds) and from pushed ones (`upright_pushed_s`,
-    where it falls), the same starts every time."""
-    from humanoid_env.inits import DefaultInit
+    where it falls), and the share of fall starts that got up (`got_up`), the same starts every time."""
+    from humanoid_env.inits import DefaultInit, FallInit
 
-    return {key: float(np.median(seconds_upright(pelvis_heights(agent, init, episodes, steps, seed))))
-            for key, init in (("upright_s", DefaultInit()), ("upright_pushed_s", DefaultInit(*PUSH)))}
+    out = {key: float(np.median(seconds_upright(pelvis_heights(agent, init, episodes, steps, seed))))
+           for key, init in (("upright_s", DefaultInit()), ("upright_pushed_s", DefaultInit(*PUSH)))}
+    return out | {"got_up": float(np.mean(got_up(pelvis_heights(agent, FallInit(), episodes, steps, seed + 1))))}
 
 
 def upright(agent: Any, episodes: int = 16, steps: int = EPISODE_STEPS, seed: int = 0) -> Upright:
@@ -80,4 +86,4 @@ def upright(agent: Any, episodes: int = 16, steps: int = EPISODE_STEPS, seed: in
 
     h = pelvis_heights(agent, DefaultInit(), episodes, steps, seed)
     up = pelvis_heights(agent, FallInit(), episodes, steps, seed + 1)
-    return Upright(seconds=seconds_upright(h), got_up=(up[-CONTROL_HZ:] > STANDING).all(0))
+    return Upright(seconds=seconds_upright(h), got_up=got_up(up))
