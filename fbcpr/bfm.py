@@ -31,12 +31,11 @@ from fbcpr.checkpoint import (
     pointed_checkpoint,
     save_checkpoint,
 )
-from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict, portable_config
+from fbcpr.config import AgentConfig, Config, ModelConfig, config_to_dict, env_of, portable_config
 from fbcpr.envs import inconsistent_rows
 from fbcpr.errors import InputError
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.prompt import Prompt
-from humanoid_env.actions import DEFAULT_ACTION_MAPPING
 
 ArrayLike = TypeVar("ArrayLike", torch.Tensor, np.ndarray)
 
@@ -113,13 +112,13 @@ class BFM:
 
     @property
     def env_name(self) -> str:
-        """The env the model was trained on (a checkpoint with only a model config is the humanoid's)."""
-        return self.config.env.name if isinstance(self.config, Config) else "humanoid"
+        """The env the model was trained on (`fbcpr.config.env_of`)."""
+        return env_of(self.config).name
 
     @property
     def action_mapping(self) -> str:
         """How the env must map this model's actions to PD targets (`humanoid_env.actions`), as it was trained."""
-        return self.config.env.action_mapping if isinstance(self.config, Config) else DEFAULT_ACTION_MAPPING
+        return env_of(self.config).action_mapping
 
     @property
     def sequence_length(self) -> int:

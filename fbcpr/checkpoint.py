@@ -33,7 +33,8 @@ import yaml
 from safetensors.torch import load_file, save_file
 
 import fbcpr
-from fbcpr.config import Config, ConfigError, ModelConfig, config_from_dict, config_to_dict, model_config_from_dict
+from fbcpr.config import (Config, ConfigError, ModelConfig, config_from_dict, config_to_dict, env_of,
+                          model_config_from_dict)
 from fbcpr.errors import FBCPRError
 from fbcpr.methods import DEFAULT_ALGORITHM, METHODS, get_method
 from humanoid_env.actions import LEGACY_ACTION_MAPPING
@@ -96,7 +97,7 @@ class Checkpoint:
             return {"next_obs": tensors["next_obs"].float().numpy(), **buf}
         from fbcpr.envs import state_observer  # lazy: the env's kinematics only for states-only samples
 
-        observer = state_observer(self.config.env.name if isinstance(self.config, Config) else "humanoid")
+        observer = state_observer(env_of(self.config).name)
         if buf["qpos"].ndim != 2 or buf["qvel"].ndim != 2 or len(buf["qpos"]) != len(buf["qvel"]):
             raise CheckpointError(f"{self.path / REWARD_FILE}: qpos {tuple(buf['qpos'].shape)} and qvel "
                                   f"{tuple(buf['qvel'].shape)} are not one row per state")

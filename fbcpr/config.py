@@ -417,6 +417,12 @@ def _paths(cfg: Config) -> list[tuple[Any, str, str]]:
     return out
 
 
+def env_of(cfg: Config | ModelConfig) -> EnvConfig:
+    """The env a checkpoint's model was trained on: a checkpoint with only a model config is the default
+    humanoid's (the env of the first checkpoints, which saved no run config)."""
+    return cfg.env if isinstance(cfg, Config) else EnvConfig()
+
+
 def portable_config(cfg: Config, base: str | Path = ".") -> Config:
     """A copy whose paths under `base` are relative to it, so that a checkpoint made to be shared does not carry
     this machine's folders (paths elsewhere stay as they are: they were never portable)."""

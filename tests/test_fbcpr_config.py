@@ -131,3 +131,11 @@ def test_shipped_configs_are_found_by_name(tmp_path, monkeypatch):
         find_config("smal")
     (tmp_path / "small").mkdir()           # a local folder of that name is not a config; the shipped one is
     assert find_config("small").parent.name == "configs"
+
+
+def test_env_of_a_model_only_config_is_the_default_humanoid():
+    from fbcpr.config import ModelConfig, env_of
+
+    toy = config_from_dict({"env": {"name": "toy"}})
+    assert env_of(toy) is toy.env and env_of(toy).name == "toy"
+    assert env_of(ModelConfig()).name == "humanoid" and env_of(ModelConfig()).action_mapping == "rest"
