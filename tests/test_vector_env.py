@@ -137,14 +137,22 @@ def _first_run_end(heights, k):
     return None
 
 
-def test_reset_fallen_after_truncates_lying_envs_only():
-    qs, vs = DefaultInit().sample(np.random.default_rng(0), 1)
+def _standing_and_fallen(standing, steps):
+    """A start of two envs (a `standing` init's state, a fall state) and their pelvis heights (steps, 2) under
+    zero actions with no reset on a fall."""
+    qs, vs = standing.sample(np.random.default_rng(0), 1)
     qf, vf = FallInit().sample(np.random.default_rng(1), 1)
     start = {"qpos": np.concatenate([qs, qf]), "qvel": np.concatenate([vs, vf])}
-    zero, steps, k = np.zeros((2, 69), np.float32), 60, 7
     free = VectorHumanoidEnv(2, num_threads=1, max_episode_steps=steps + 1)
     free.reset(options=start)
-    heights = np.stack([free.step(zero)[4]["final_qpos"][:, 2] for _ in range(steps)])
+    zero = np.zeros((2, 69), np.float32)
+    return start, np.stack([free.step(zero)[4]["final_qpos"][:, 2] for _ in range(steps)])
+
+
+def test_reset_fallen_after_truncates_lying_envs_only():
+    zero, steps, k = np.zeros((2, 69), np.float32), 60, 7
+    start, heights = _standing_and_fallen(DefaultInit(), steps)
+    qf, vf = start["qpos"][1:], start["qvel"][1:]
     end = _first_run_end(heights[:, 1], k)
     assert _first_run_end(heights[:, 0], 1) is None and end is not None  # one stands, the other lies
 
@@ -167,13 +175,8 @@ def test_reset_fallen_after_truncates_lying_envs_only():
 
 def test_reset_fallen_once_up_spares_a_fall_start_until_it_has_been_up():
     """A pushed standing start is up for k steps before it falls, so its clock runs; a fall start never was."""
-    qs, vs = DefaultInit(0.1, 0.3).sample(np.random.default_rng(0), 1)
-    qf, vf = FallInit().sample(np.random.default_rng(1), 1)
-    start = {"qpos": np.concatenate([qs, qf]), "qvel": np.concatenate([vs, vf])}
     zero, steps, k = np.zeros((2, 69), np.float32), 120, 7
-    free = VectorHumanoidEnv(2, num_threads=1, max_episode_steps=steps + 1)
-    free.reset(options=start)
-    heights = np.stack([free.step(zero)[4]["final_qpos"][:, 2] for _ in range(steps)])
+    start, heights = _standing_and_fallen(DefaultInit(0.1, 0.3), steps)
     pushed, lying = _first_run_end(heights[:, 0], k), _first_run_end(heights[:, 1], k)
     assert pushed is not None and pushed > 2 * k and lying is not None and lying < pushed  # both fall, one was up
 
@@ -181,9 +184,9 @@ def test_reset_fallen_once_up_spares_a_fall_start_until_it_has_been_up():
     env.reset(options=start)
     truncs = np.stack([env.step(zero)[3] for _ in range(pushed + 1)])
     assert np.flatnonzero(truncs[:, 0]).tolist() == [pushed] and not truncs[:, 1].any()
-    for qpos, qvel, col in ((qs, vs, 0), (qf, vf, 1)):
+    for col in (0, 1):
         single = HumanoidEnv(max_episode_steps=steps + 1, reset_fallen_after=k, reset_fallen_once_up=True)
-        single.reset(options={"qpos": qpos[0], "qvel": qvel[0]})
+        single.reset(options={"qpos": start["qpos"][col], "qvel": start["qvel"][col]})
         assert [single.step(zero[0])[3] for _ in range(pushed + 1)] == truncs[:, col].tolist()
 
 
