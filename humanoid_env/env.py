@@ -46,6 +46,31 @@ def check_reset_fallen(steps: int) -> int:
     return int(steps)
 
 
+class FallenClock:
+    """Per env, how long the pelvis has been below `FALLEN_HEIGHT` in a row, and whether that ends the episode:
+    after `reset_fallen_after` steps (0: never); with `once_up`, only once it has been up that long in a row in
+    this episode, so a fall start (which lies at once) keeps its whole episode to get up."""
+
+    def __init__(self, num_envs: int, reset_fallen_after: int, once_up: bool) -> None:
+        self.after, self.once_up = check_reset_fallen(reset_fallen_after), bool(once_up)
+        self.fallen, self.up = np.zeros(num_envs, np.int64), np.zeros(num_envs, np.int64)
+        self.armed = np.zeros(num_envs, bool)
+
+    def reset(self, ids: Any = slice(None)) -> None:
+        self.fallen[ids] = self.up[ids] = 0
+        self.armed[ids] = False
+
+    def step(self, pelvis_heights: np.ndarray) -> np.ndarray:
+        """Count one step; (num_envs,) mask of the envs that have now lain fallen long enough."""
+        low = np.asarray(pelvis_heights) < FALLEN_HEIGHT
+        self.fallen = np.where(low, self.fallen + 1, 0)
+        self.up = np.where(low, 0, self.up + 1)
+        if not self.after:
+            return np.zeros(len(low), bool)
+        self.armed |= self.up >= self.after
+        return (self.fallen >= self.after) & (self.armed | (not self.once_up))
+
+
 def reset_fallen_steps(seconds: float) -> int:
     """`reset_fallen_after` for a time in seconds: whole control steps, at least one when the reset is on."""
     return max(round(seconds * CONTROL_HZ), int(seconds > 0))
@@ -119,9 +144,8 @@ class HumanoidEnv(gym.Env):
         self.reward_fn = resolve_reward(reward)
         self.termination_fn = termination
         self.max_episode_steps = int(max_episode_steps)
-        self.reset_fallen_after = check_reset_fallen(reset_fallen_after)
+        self._clock = FallenClock(1, reset_fallen_after, reset_fallen_once_up)
         self.fallen_terminates = bool(fallen_terminates)
-        self.reset_fallen_once_up = bool(reset_fallen_once_up)
         self.max_qvel = float(max_qvel)
         self.render_mode = render_mode
         self._size = (height, width)
@@ -132,8 +156,15 @@ class HumanoidEnv(gym.Env):
         self._act = np.empty(NU)
         self._obs = np.zeros(OBS_DIM, np.float32)
         self._good_qpos, self._good_qvel = self.data.qpos.copy(), self.data.qvel.copy()
-        self._steps = self._fallen_steps = self._up_steps = 0
-        self._armed = False
+        self._steps = 0
+
+    @property
+    def reset_fallen_after(self) -> int:
+        return self._clock.after
+
+    @property
+    def reset_fallen_once_up(self) -> bool:
+        return self._clock.once_up
 
     def _observe(self) -> np.ndarray:
         xpos, xmat, cvel, com = read_kinematics(self.model, self.data)
@@ -158,8 +189,8 @@ class HumanoidEnv(gym.Env):
         self.data.qvel[:] = qvel
         self.data.time = EPISODE_START_TIME
         mujoco.mj_forward(self.model, self.data)
-        self._steps = self._fallen_steps = self._up_steps = 0
-        self._armed = False
+        self._steps = 0
+        self._clock.reset()
         obs = self._observe()
         if not np.isfinite(obs).all():
             raise InvalidStateError("reset: the state's observation is not finite (qpos/qvel beyond float32 range?)")
@@ -190,10 +221,7 @@ class HumanoidEnv(gym.Env):
                 reward = float(self.reward_fn(obs[None], self._act[None].astype(np.float32), info["qpos"][None], info["qvel"][None])[0])
             if self.termination_fn is not None:
                 terminated = bool(self.termination_fn(obs[None], info["qpos"][None], info["qvel"][None])[0])
-        low = info["qpos"][2] < FALLEN_HEIGHT
-        self._fallen_steps, self._up_steps = (self._fallen_steps + 1, 0) if low else (0, self._up_steps + 1)
-        self._armed = self._armed or 0 < self.reset_fallen_after <= self._up_steps
-        lain = 0 < self.reset_fallen_after <= self._fallen_steps and (self._armed or not self.reset_fallen_once_up)
+        lain = bool(self._clock.step(info["qpos"][None, 2])[0])
         terminated = terminated or (lain and self.fallen_terminates)
         truncated = self._steps >= self.max_episode_steps or (lain and not self.fallen_terminates)
         return obs, reward, terminated, truncated, info

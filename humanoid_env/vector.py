@@ -22,13 +22,12 @@ from humanoid_env.env import (
     DEFAULT_EPISODE_STEPS,
     DIVERGENCE_WARNINGS,
     EPISODE_START_TIME,
-    FALLEN_HEIGHT,
     MAX_QVEL,
+    FallenClock,
     InitSampler,
     RewardFn,
     TerminationFn,
     _state_options,
-    check_reset_fallen,
     check_state,
     resolve_reward,
 )
@@ -73,9 +72,8 @@ class VectorHumanoidEnv(VectorEnv):
         self.reward_fn = resolve_reward(reward)
         self.termination_fn = termination
         self.max_episode_steps = int(max_episode_steps)
-        self.reset_fallen_after = check_reset_fallen(reset_fallen_after)
+        self._clock = FallenClock(self.num_envs, reset_fallen_after, reset_fallen_once_up)
         self.fallen_terminates = bool(fallen_terminates)
-        self.reset_fallen_once_up = bool(reset_fallen_once_up)
         self.max_qvel = float(max_qvel)
         self.render_mode = None
         self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
@@ -92,10 +90,15 @@ class VectorHumanoidEnv(VectorEnv):
         self._obs = np.zeros((self.num_envs, OBS_DIM), np.float32)
         self._good_qpos, self._good_qvel = self._qpos.copy(), self._qvel.copy()
         self._steps = np.zeros(self.num_envs, np.int64)
-        self._fallen_steps = np.zeros(self.num_envs, np.int64)
-        self._up_steps = np.zeros(self.num_envs, np.int64)
-        self._armed = np.zeros(self.num_envs, bool)
         self._np_random, self._np_random_seed = seeding.np_random(None)
+
+    @property
+    def reset_fallen_after(self) -> int:
+        return self._clock.after
+
+    @property
+    def reset_fallen_once_up(self) -> bool:
+        return self._clock.once_up
 
     def _observe(self, ids: np.ndarray | None = None) -> np.ndarray:
         sel = slice(None) if ids is None else ids
@@ -118,8 +121,7 @@ class VectorHumanoidEnv(VectorEnv):
         self._obs[ids] = obs
         self._good_qpos[ids], self._good_qvel[ids] = qpos, qvel
         self._steps[ids] = 0
-        self._fallen_steps[ids] = self._up_steps[ids] = 0
-        self._armed[ids] = False
+        self._clock.reset(ids)
 
     def _sample(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         qpos, qvel = self.init.sample(self.np_random, k)
@@ -169,19 +171,12 @@ class VectorHumanoidEnv(VectorEnv):
         if self.termination_fn is not None:
             terminated |= np.asarray(self.termination_fn(obs, qpos, qvel), dtype=bool).reshape(self.num_envs)
         self._steps += 1
-        low = qpos[:, 2] < FALLEN_HEIGHT
-        self._fallen_steps = np.where(low, self._fallen_steps + 1, 0)
-        self._up_steps = np.where(low, 0, self._up_steps + 1)
+        lain = self._clock.step(qpos[:, 2])
         truncated = self._steps >= self.max_episode_steps
-        if self.reset_fallen_after:
-            self._armed |= self._up_steps >= self.reset_fallen_after
-            lain = self._fallen_steps >= self.reset_fallen_after
-            if self.reset_fallen_once_up:
-                lain &= self._armed
-            if self.fallen_terminates:
-                terminated |= lain
-            else:
-                truncated |= lain
+        if self.fallen_terminates:
+            terminated |= lain
+        else:
+            truncated |= lain
         done = terminated | truncated
 
         self._obs, self._good_qpos, self._good_qvel = obs, qpos, qvel
