@@ -12,7 +12,9 @@ and episodes, and prints each measure with its target:
     python benchmarks/targets.py pretrained --motions data/clips/deepmimic --episodes 4 --out runs/targets.json
 
 The floors are seeded and deterministic, so `--floors runs/targets.json` reuses the zero and random rows of an
-earlier run with the same settings and costs a third of the time.
+earlier run with the same settings and costs a third of the time. Beside a training on a 2-core machine, pass
+`--threads 1`: unpinned, the benchmark's torch and MuJoCo threads and the training's share the cores and it ran
+6x slower (35 min instead of 6).
 """
 from __future__ import annotations
 
@@ -22,18 +24,21 @@ import math
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.report import json_safe
 from fbcpr.evaluation.runner import EPISODE_STEPS, evaluate
 from fbcpr.evaluation.upright import upright
 
 
-def measure(spec: str, motions: Any, episodes: int, steps: int, seed: int) -> dict[str, Any]:
+def measure(spec: str, motions: Any, episodes: int, steps: int, seed: int,
+            threads: int | None = None) -> dict[str, Any]:
     """Every measure of the table for one agent, plus the per-task returns (to count wins over the floors)."""
     agent = make_agent(spec, seed=seed)
-    up = upright(agent, episodes=max(episodes, 8), steps=steps, seed=seed)
+    up = upright(agent, episodes=max(episodes, 8), steps=steps, seed=seed, num_threads=threads)
     res = evaluate(agent, "all", episodes=episodes, motions=motions, steps=steps, seed=seed, show_progress=False,
-                   agent_name=spec)
+                   agent_name=spec, num_threads=threads)
     return {"upright_median_s": up.median_seconds, "got_up": up.share_got_up,
             "move-ego-0-2": res["reward"]["move-ego-0-2"]["return_mean"],
             "returns": {t: r["return_mean"] for t, r in res["reward"].items()},
@@ -49,7 +54,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, help="write all figures as JSON here")
     ap.add_argument("--floors", type=Path, help="take the zero and random rows from this earlier --out file")
+    ap.add_argument("--threads", type=int, help="torch and MuJoCo threads (default: all cores); 1 beside a training")
     args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     from motions.library import MotionLibrary
 
     settings = {"motions": str(args.motions), "episodes": args.episodes, "steps": args.steps, "seed": args.seed}
@@ -61,7 +69,7 @@ def main() -> None:
         rows = {name: earlier[name] for name in ("zero", "random")}
     motions = MotionLibrary.load(args.motions)
     for name in ("zero", "random", args.agent):
-        rows[name] = rows.get(name) or measure(name, motions, args.episodes, args.steps, args.seed)
+        rows[name] = rows.get(name) or measure(name, motions, args.episodes, args.steps, args.seed, args.threads)
     model, floors = rows[args.agent], [rows["zero"], rows["random"]]
     wins = [t for t, r in model["returns"].items() if all(r > f["returns"][t] for f in floors)]
     for r in rows.values():

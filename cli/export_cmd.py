@@ -1,4 +1,5 @@
-"""`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample of states)."""
+"""`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample of states),
+optionally with its weights interpolated towards the model it was trained on from (`--interpolate BASE`)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -18,11 +19,18 @@ def export_command(
     states_only: bool = typer.Option(True, "--states-only/--with-obs",
                                      help="Store the reward states without their observations, which loading "
                                           "rebuilds from qpos/qvel (a third of the size on the humanoid)."),
+    interpolate_from: str = typer.Option(None, "--interpolate", metavar="BASE",
+                                         help="Export (1 - alpha) * BASE + alpha * CHECKPOINT, weight by weight: "
+                                              "BASE is the model CHECKPOINT's run continued from (WiSE-FT)."),
+    alpha: float = typer.Option(0.5, "--alpha", help="Weight of CHECKPOINT with --interpolate (0: BASE, 1: it)."),
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.bfm import BFM
+    from fbcpr.interpolation import interpolate
 
     bfm = BFM.load(checkpoint)
+    if interpolate_from is not None:
+        bfm = interpolate(BFM.load(interpolate_from), bfm, alpha)
     path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
     sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
     for name, size in sizes.items():

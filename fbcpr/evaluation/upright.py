@@ -39,12 +39,13 @@ class Upright:
 
 
 def pelvis_heights(agent: Any, init: Any, episodes: int, steps: int, seed: int,
-                   prompt: str | np.ndarray = STAND_PROMPT) -> np.ndarray:
+                   prompt: str | np.ndarray = STAND_PROMPT, num_threads: int | None = None) -> np.ndarray:
     """Pelvis heights (steps, episodes) of the agent prompted with `prompt` (a reward name, or a z) from `init`
-    starts."""
+    starts, stepped on `num_threads` threads (None: all cores)."""
     from humanoid_env.vector import VectorHumanoidEnv
 
-    env = VectorHumanoidEnv(episodes, init=init, max_episode_steps=steps + 1, action_mapping=action_mapping(agent))
+    env = VectorHumanoidEnv(episodes, init=init, max_episode_steps=steps + 1, action_mapping=action_mapping(agent),
+                            num_threads=num_threads)
     try:
         obs, _ = env.reset(seed=seed)
         z = agent.reward_z(prompt) if isinstance(prompt, str) else np.asarray(prompt, dtype=np.float32)
@@ -80,10 +81,11 @@ def upright_medians(agent: Any, episodes: int, steps: int = EPISODE_STEPS, seed:
     return out | {"got_up": float(np.mean(got_up(pelvis_heights(agent, FallInit(), episodes, steps, seed + 1))))}
 
 
-def upright(agent: Any, episodes: int = 16, steps: int = EPISODE_STEPS, seed: int = 0) -> Upright:
+def upright(agent: Any, episodes: int = 16, steps: int = EPISODE_STEPS, seed: int = 0,
+            num_threads: int | None = None) -> Upright:
     """Both measures for one agent (a BFM or a floor baseline), `episodes` each, seeded."""
     from humanoid_env.inits import DefaultInit, FallInit
 
-    h = pelvis_heights(agent, DefaultInit(), episodes, steps, seed)
-    up = pelvis_heights(agent, FallInit(), episodes, steps, seed + 1)
+    h = pelvis_heights(agent, DefaultInit(), episodes, steps, seed, num_threads=num_threads)
+    up = pelvis_heights(agent, FallInit(), episodes, steps, seed + 1, num_threads=num_threads)
     return Upright(seconds=seconds_upright(h), got_up=got_up(up))

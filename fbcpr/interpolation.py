@@ -1,0 +1,42 @@
+"""Weight-space interpolation of two FB-CPR models of one lineage: (1 - alpha) * base + alpha * tuned.
+
+A run continued from a model (`--init-from`) can gain skills (balance under pushes, walking) and lose others
+(some reward tasks). Averaging the weights of the two, tensor by tensor, often keeps most of both: Wortsman et al.
+(2022, "Robust fine-tuning of zero-shot models", WiSE-FT) show this for a model and its fine-tuned copy, which
+stay in one basin of the loss. It only makes sense for two checkpoints where one was trained on from the other;
+two independent runs have unrelated weights and their average is noise. docs/results.md section 19 measures it.
+"""
+from __future__ import annotations
+
+import copy
+import math
+
+import torch
+
+from fbcpr.bfm import BFM
+from fbcpr.checkpoint import CheckpointError
+from fbcpr.config import env_of
+from fbcpr.errors import InputError
+
+
+def interpolate(base: BFM, tuned: BFM, alpha: float) -> BFM:
+    """A new BFM whose every floating-point tensor (networks and observation normaliser) is
+    `(1 - alpha) * base + alpha * tuned`; config and reward-inference buffer are `tuned`'s.
+
+    Raises InputError for alpha outside [0, 1] and CheckpointError when the two models differ in architecture,
+    env or action mapping (their weights would not mean the same thing)."""
+    if not (isinstance(alpha, (int, float)) and math.isfinite(alpha) and 0.0 <= alpha <= 1.0):
+        raise InputError(f"alpha: expected a number in [0, 1], got {alpha!r}")
+    for what, a, b in (("env", base.env_name, tuned.env_name),
+                       ("action mapping", base.action_mapping, tuned.action_mapping),
+                       ("model config", base.model.cfg, tuned.model.cfg)):
+        if a != b:
+            raise CheckpointError(f"cannot interpolate {base.source} and {tuned.source}: their {what} differs "
+                                  f"({a} against {b})")
+    sa, sb = base.model.state_dict(), tuned.model.state_dict()
+    if sa.keys() != sb.keys() or any(sa[k].shape != sb[k].shape for k in sa):
+        raise CheckpointError(f"cannot interpolate {base.source} and {tuned.source}: their tensors differ")
+    model = copy.deepcopy(tuned.model)
+    model.load_state_dict({k: torch.lerp(sa[k], sb[k], alpha) if sa[k].is_floating_point() else sb[k] for k in sa})
+    return BFM(model, tuned.config, reward_buffer=tuned.reward_buffer,
+               source=f"interpolate({base.source}, {tuned.source}, alpha={alpha:g})")
