@@ -56,7 +56,9 @@ def main() -> None:
     ap.add_argument("--floors", type=Path, help="take the zero and random rows from this earlier --out file")
     ap.add_argument("--threads", type=int, help="torch and MuJoCo threads (default: all cores); 1 beside a training")
     args = ap.parse_args()
-    if args.threads:
+    if args.threads is not None:
+        if args.threads < 1:
+            ap.error(f"--threads must be >= 1, got {args.threads}")
         torch.set_num_threads(args.threads)
     from motions.library import MotionLibrary
 

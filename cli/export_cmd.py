@@ -22,15 +22,19 @@ def export_command(
     interpolate_from: str = typer.Option(None, "--interpolate", metavar="BASE",
                                          help="Export (1 - alpha) * BASE + alpha * CHECKPOINT, weight by weight: "
                                               "BASE is the model CHECKPOINT's run continued from (WiSE-FT)."),
-    alpha: float = typer.Option(0.5, "--alpha", help="Weight of CHECKPOINT with --interpolate (0: BASE, 1: it)."),
+    alpha: float = typer.Option(None, "--alpha",
+                                help="Weight of CHECKPOINT with --interpolate (0: BASE, 1: it; default 0.5)."),
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.bfm import BFM
+    from fbcpr.errors import InputError
     from fbcpr.interpolation import interpolate
 
+    if alpha is not None and interpolate_from is None:
+        raise InputError("--alpha: only means something with --interpolate BASE")
     bfm = BFM.load(checkpoint)
     if interpolate_from is not None:
-        bfm = interpolate(BFM.load(interpolate_from), bfm, alpha)
+        bfm = interpolate(BFM.load(interpolate_from), bfm, 0.5 if alpha is None else alpha)
     path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
     sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
     for name, size in sizes.items():

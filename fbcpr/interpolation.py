@@ -15,7 +15,6 @@ import torch
 
 from fbcpr.bfm import BFM
 from fbcpr.checkpoint import CheckpointError
-from fbcpr.config import env_of
 from fbcpr.errors import InputError
 
 

@@ -98,3 +98,10 @@ def test_export_interpolate_with_a_bad_alpha_is_a_clear_error(pair, tmp_path):
     assert res.exit_code != 0
     assert "alpha" in res.output and "Traceback" not in res.output
     assert not (tmp_path / "x").exists()
+
+
+def test_export_alpha_without_interpolate_is_refused(pair, tmp_path):
+    res = CliRunner().invoke(app, ["export", str(pair[1]), str(tmp_path / "y"), "--alpha", "0.3"])
+    assert res.exit_code != 0
+    assert "--interpolate" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "y").exists()
