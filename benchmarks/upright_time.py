@@ -4,11 +4,13 @@ For each agent (the zero-action and random floors, then checkpoints) prompted wi
 until the pelvis drops below 0.6 m from standing starts (median, mean ± std), and the share of fall starts
 after which the pelvis stays above 0.8 m over the whole last second (got up). See fbcpr.evaluation.upright.
 
-`--probe` asks whether a model's balance depends on its prompt at all: for each checkpoint, seconds upright from
-standing starts also under the t_pose goal, the imitation z of a clip (`--clip`) and random unit z's.
+`--probe` asks whether a model's balance, or its getting up, depends on its prompt at all: for each checkpoint,
+seconds upright from standing starts and the share of fall starts that got up, also under goal poses (`--goal`),
+the imitation z of a clip (`--clip`) and random unit z's.
 
     python benchmarks/upright_time.py runs/cpu-rest/checkpoints/step_0000100352 pretrained --episodes 16
     python benchmarks/upright_time.py pretrained --probe --clip data/clips/deepmimic/walk.npz --episodes 8
+    python benchmarks/upright_time.py pretrained --probe --goal a_pose --clip data/clips/mixed/getup_facedown.npz
 """
 from __future__ import annotations
 
@@ -20,13 +22,13 @@ import numpy as np
 
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.runner import EPISODE_STEPS
-from fbcpr.evaluation.upright import STAND_PROMPT, pelvis_heights, seconds_upright, upright
+from fbcpr.evaluation.upright import STAND_PROMPT, got_up, pelvis_heights, seconds_upright, upright
 from humanoid_env.model import CONTROL_HZ
 
 
-def probe_prompts(agent: Any, clip: str | None, random_z: int, seed: int) -> dict[str, np.ndarray]:
-    """z's beside the stand reward's: a goal pose, a clip's imitation z and random unit z's."""
-    zs = {"goal t_pose": agent.goal_z("t_pose")}
+def probe_prompts(agent: Any, goals: list[str], clip: str | None, random_z: int, seed: int) -> dict[str, np.ndarray]:
+    """z's beside the stand reward's: goal poses, a clip's imitation z and random unit z's."""
+    zs = {f"goal {g}": agent.goal_z(g) for g in goals}
     if clip is not None:
         from motions.clip import load_clip
 
@@ -38,11 +40,14 @@ def probe_prompts(agent: Any, clip: str | None, random_z: int, seed: int) -> dic
 
 
 def print_row(label: str, agent: Any, init: Any, args: argparse.Namespace, prompt: str | np.ndarray = STAND_PROMPT,
-              whole: bool = False) -> None:
+              whole: bool = False, falls: Any = None) -> None:
     """One row: seconds upright of `agent` from `init` starts under `prompt`; `whole` adds how many episodes stayed
-    up to the end."""
+    up to the end, `falls` (fall starts) the share that got up under the same prompt, seeded as `upright` seeds
+    them."""
     sec = seconds_upright(pelvis_heights(agent, init, args.episodes, args.steps, args.seed, prompt))
     end = f" (whole {args.steps / CONTROL_HZ:g} s: {(sec >= args.steps / CONTROL_HZ).sum()}/{len(sec)})" if whole else ""
+    if falls is not None:
+        end += f" {got_up(pelvis_heights(agent, falls, args.episodes, args.steps, args.seed + 1, prompt)).mean():7.2f}"
     print(f"{label:60s} {np.median(sec):9.2f} {sec.mean():8.2f} ± {sec.std():4.2f}{end}", flush=True)
 
 
@@ -53,13 +58,14 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=EPISODE_STEPS)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--probe", action="store_true", help="also other prompts than the stand reward (checkpoints only)")
+    ap.add_argument("--goal", nargs="+", default=["t_pose"], help="with --probe: the goal poses probed")
     ap.add_argument("--clip", help="with --probe: a clip .npz whose imitation z is probed")
     ap.add_argument("--random-z", type=int, default=2, help="with --probe: how many random unit z's")
     ap.add_argument("--push", type=float, nargs=2, metavar=("ANGLE", "VEL"),
                     help="also from pushed standing starts: joint-angle noise (rad) and velocity noise of DefaultInit, "
                          "where the zero action falls too")
     args = ap.parse_args()
-    from humanoid_env.inits import DefaultInit
+    from humanoid_env.inits import DefaultInit, FallInit
 
     print(f"{'agent':60s} {'median s':>9s} {'mean ± std s':>14s} {'got up':>7s}")
     for spec in ["zero", "random", *args.agents]:
@@ -71,8 +77,8 @@ def main() -> None:
             print_row("  pushed start", agent, DefaultInit(*args.push), args, whole=True)
         if not args.probe or spec in ("zero", "random"):
             continue
-        for name, z in probe_prompts(agent, args.clip, args.random_z, args.seed).items():
-            print_row("  z = " + name, agent, DefaultInit(), args, prompt=z)
+        for name, z in probe_prompts(agent, args.goal, args.clip, args.random_z, args.seed).items():
+            print_row("  z = " + name, agent, DefaultInit(), args, prompt=z, falls=FallInit())
 
 
 if __name__ == "__main__":
