@@ -54,6 +54,7 @@ def plot(curves: dict[str, dict[str, list]], metrics: list[str], path: Path) -> 
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import EngFormatter
 
     timed = any(p[1] is not None for by_key in curves.values() for pts in by_key.values() for p in pts)
     fig, axes = plt.subplots(len(metrics), 1 + timed, figsize=(5.5 * (1 + timed), 3.6 * len(metrics)), squeeze=False)
@@ -65,6 +66,7 @@ def plot(curves: dict[str, dict[str, list]], metrics: list[str], path: Path) -> 
                 mine = [p for p in pts if p[1] is not None]
                 row[1].plot([p[1] for p in mine], [p[2] for p in mine], marker="o", markersize=3, label=run)
         row[0].set(xlabel="env steps", ylabel=key)
+        row[0].xaxis.set_major_formatter(EngFormatter())  # 400k, 1M: raw step counts run into each other
         if timed:
             row[1].set(xlabel="hours of training (wall_s)", ylabel=key)
         for ax in row:

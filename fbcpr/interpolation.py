@@ -4,7 +4,7 @@ A run continued from a model (`--init-from`) can gain skills (balance under push
 (some reward tasks). Averaging the weights of the two, tensor by tensor, often keeps most of both: Wortsman et al.
 (2022, "Robust fine-tuning of zero-shot models", WiSE-FT) show this for a model and its fine-tuned copy, which
 stay in one basin of the loss. It only makes sense for two checkpoints where one was trained on from the other;
-two independent runs have unrelated weights and their average is noise. docs/results.md section 19 measures it.
+two independent runs have unrelated weights and their average is noise. docs/results.md sections 19-20 measure it.
 """
 from __future__ import annotations
 
