@@ -22,7 +22,7 @@ import numpy as np
 
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.runner import EPISODE_STEPS
-from fbcpr.evaluation.upright import STAND_PROMPT, got_up, pelvis_heights, seconds_upright, upright
+from fbcpr.evaluation.upright import STAND_PROMPT, fall_starts_got_up, pelvis_heights, seconds_upright, upright
 from humanoid_env.model import CONTROL_HZ
 
 
@@ -40,14 +40,13 @@ def probe_prompts(agent: Any, goals: list[str], clip: str | None, random_z: int,
 
 
 def print_row(label: str, agent: Any, init: Any, args: argparse.Namespace, prompt: str | np.ndarray = STAND_PROMPT,
-              whole: bool = False, falls: Any = None) -> None:
+              whole: bool = False, falls: bool = False) -> None:
     """One row: seconds upright of `agent` from `init` starts under `prompt`; `whole` adds how many episodes stayed
-    up to the end, `falls` (fall starts) the share that got up under the same prompt, seeded as `upright` seeds
-    them."""
+    up to the end, `falls` the share of fall starts (those of `upright`) that got up under the same prompt."""
     sec = seconds_upright(pelvis_heights(agent, init, args.episodes, args.steps, args.seed, prompt))
     end = f" (whole {args.steps / CONTROL_HZ:g} s: {(sec >= args.steps / CONTROL_HZ).sum()}/{len(sec)})" if whole else ""
-    if falls is not None:
-        end += f" {got_up(pelvis_heights(agent, falls, args.episodes, args.steps, args.seed + 1, prompt)).mean():7.2f}"
+    if falls:
+        end += f" {fall_starts_got_up(agent, args.episodes, args.steps, args.seed, prompt).mean():7.2f}"
     print(f"{label:60s} {np.median(sec):9.2f} {sec.mean():8.2f} ± {sec.std():4.2f}{end}", flush=True)
 
 
@@ -65,7 +64,7 @@ def main() -> None:
                     help="also from pushed standing starts: joint-angle noise (rad) and velocity noise of DefaultInit, "
                          "where the zero action falls too")
     args = ap.parse_args()
-    from humanoid_env.inits import DefaultInit, FallInit
+    from humanoid_env.inits import DefaultInit
 
     print(f"{'agent':60s} {'median s':>9s} {'mean ± std s':>14s} {'got up':>7s}")
     for spec in ["zero", "random", *args.agents]:
@@ -78,7 +77,7 @@ def main() -> None:
         if not args.probe or spec in ("zero", "random"):
             continue
         for name, z in probe_prompts(agent, args.goal, args.clip, args.random_z, args.seed).items():
-            print_row("  z = " + name, agent, DefaultInit(), args, prompt=z, falls=FallInit())
+            print_row("  z = " + name, agent, DefaultInit(), args, prompt=z, falls=True)
 
 
 if __name__ == "__main__":

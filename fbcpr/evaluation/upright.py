@@ -70,22 +70,31 @@ def got_up(heights: np.ndarray) -> np.ndarray:
     return (heights[-CONTROL_HZ:] > STANDING).all(0)
 
 
+def fall_starts_got_up(agent: Any, episodes: int, steps: int, seed: int, prompt: str | np.ndarray = STAND_PROMPT,
+                       num_threads: int | None = None) -> np.ndarray:
+    """Per episode, whether a fall start got up under `prompt`; the fall starts of `seed` are drawn with seed + 1,
+    so they are not the same draws as the standing starts of that seed."""
+    from humanoid_env.inits import FallInit
+
+    return got_up(pelvis_heights(agent, FallInit(), episodes, steps, seed + 1, prompt, num_threads=num_threads))
+
+
 def upright_medians(agent: Any, episodes: int, steps: int = EPISODE_STEPS, seed: int = 0) -> dict[str, float]:
     """What a training run logs at each evaluation (`train.eval_upright`): median seconds upright under the stand
     prompt from standing starts (`upright_s`, which the zero action holds) and from pushed ones (`upright_pushed_s`,
     where it falls), and the share of fall starts that got up (`got_up`), the same starts every time."""
-    from humanoid_env.inits import DefaultInit, FallInit
+    from humanoid_env.inits import DefaultInit
 
     out = {key: float(np.median(seconds_upright(pelvis_heights(agent, init, episodes, steps, seed))))
            for key, init in (("upright_s", DefaultInit()), ("upright_pushed_s", DefaultInit(*PUSH)))}
-    return out | {"got_up": float(np.mean(got_up(pelvis_heights(agent, FallInit(), episodes, steps, seed + 1))))}
+    return out | {"got_up": float(np.mean(fall_starts_got_up(agent, episodes, steps, seed)))}
 
 
 def upright(agent: Any, episodes: int = 16, steps: int = EPISODE_STEPS, seed: int = 0,
             num_threads: int | None = None) -> Upright:
     """Both measures for one agent (a BFM or a floor baseline), `episodes` each, seeded."""
-    from humanoid_env.inits import DefaultInit, FallInit
+    from humanoid_env.inits import DefaultInit
 
     h = pelvis_heights(agent, DefaultInit(), episodes, steps, seed, num_threads=num_threads)
-    up = pelvis_heights(agent, FallInit(), episodes, steps, seed + 1, num_threads=num_threads)
-    return Upright(seconds=seconds_upright(h), got_up=got_up(up))
+    return Upright(seconds=seconds_upright(h), got_up=fall_starts_got_up(agent, episodes, steps, seed,
+                                                                         num_threads=num_threads))
