@@ -1,0 +1,64 @@
+"""benchmarks/compare_targets.py: candidates against a base, seed by seed, from targets.py --out files."""
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).parents[1] / "benchmarks" / "compare_targets.py"
+spec = importlib.util.spec_from_file_location("compare_targets", SCRIPT)
+compare_targets = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(compare_targets)
+
+
+def targets_file(path: Path, name: str, seed: int, returns: dict, **measures) -> Path:
+    """A file shaped like targets.py --out: the floors, one model row and the settings."""
+    floor = {"returns": {t: 0.0 for t in returns}, "beats_floors": None}
+    row = {"move-ego-0-2": returns["move-ego-0-2"], "returns": returns, "beats_floors": 1, "goal_success": 0.1,
+           "tracking_emd": 5.0, "upright_median_s": 10.0, "got_up": 0.0} | measures
+    settings = {"motions": "clips", "episodes": 4, "steps": 300, "seed": seed}
+    path.write_text(json.dumps({"zero": floor, "random": floor, name: row, "settings": settings}))
+    return path
+
+
+def test_per_seed_measures_sums_and_tasks_above_the_base(tmp_path):
+    base = [targets_file(tmp_path / f"b{s}.json", "base", s, {"move-ego-0-2": 10.0, "jump-2": 5.0}) for s in (0, 1)]
+    cand = [targets_file(tmp_path / "c0.json", "cand", 0, {"move-ego-0-2": 20.0, "jump-2": 1.0}, goal_success=0.3),
+            targets_file(tmp_path / "c1.json", "cand", 1, {"move-ego-0-2": 30.0, "jump-2": 6.0}, beats_floors=2)]
+    res = compare_targets.compare(base, cand)
+    assert res["walk"] == [20.0, 30.0]
+    assert res["sum"] == [21.0, 36.0]
+    assert res["> base"] == [1, 2]           # seed 0: walk only; seed 1: walk and jump
+    assert res["goal"] == [0.3, 0.1]
+    assert res["tasks > floors"] == [1, 2]
+
+
+def test_refuses_files_of_other_seeds_or_counts(tmp_path):
+    base = [targets_file(tmp_path / "b0.json", "base", 0, {"move-ego-0-2": 1.0})]
+    other_seed = targets_file(tmp_path / "c.json", "cand", 3, {"move-ego-0-2": 1.0})
+    with pytest.raises(SystemExit, match="measured with"):
+        compare_targets.compare(base, [other_seed])
+    with pytest.raises(SystemExit, match="one per seed"):
+        compare_targets.compare(base, [other_seed, other_seed])
+
+
+def test_a_file_that_is_not_a_targets_output_is_named(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(SystemExit, match="bad.json"):
+        compare_targets.model_row(bad)
+    two_models = tmp_path / "two.json"
+    two_models.write_text(json.dumps({"a": {}, "b": {}, "settings": {}}))
+    with pytest.raises(SystemExit, match="one model row"):
+        compare_targets.model_row(two_models)
+
+
+def test_command_line_prints_each_model_with_its_mean(tmp_path):
+    base = targets_file(tmp_path / "b.json", "base", 0, {"move-ego-0-2": 10.0})
+    cand = targets_file(tmp_path / "c.json", "cand", 0, {"move-ego-0-2": 40.0})
+    out = subprocess.run([sys.executable, str(SCRIPT), "--base", str(base), "--candidate", "A", str(cand)],
+                         capture_output=True, text=True, check=True).stdout
+    assert "walk 10.0 (10.0)" in out.splitlines()[1]
+    assert out.splitlines()[2].startswith("A") and "walk 40.0 (40.0)" in out and "> base 1 (1.0)" in out
