@@ -31,7 +31,11 @@ def model_row(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
         names = [k for k in data if k not in FLOORS]
         if len(names) != 1:
             raise SystemExit(f"{path}: expected one model row besides the floors, found {names}")
-        return data["settings"], data[names[0]]
+        row = data[names[0]]
+        missing = [k for k in (*MEASURES.values(), "returns") if k not in row]
+        if missing:
+            raise SystemExit(f"{path}: the row {names[0]!r} has no {', '.join(missing)}")
+        return data["settings"], row
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise SystemExit(f"{path}: not a targets.py --out file ({e})") from None
 
@@ -45,6 +49,8 @@ def compare(base: list[Path], candidate: list[Path]) -> dict[str, list[float]]:
         (b_set, b_row), (c_set, c_row) = model_row(b_path), model_row(c_path)
         if b_set != c_set:
             raise SystemExit(f"{c_path}: measured with {c_set}, but {b_path} with {b_set}")
+        if c_row["returns"].keys() != b_row["returns"].keys():
+            raise SystemExit(f"{c_path}: its tasks differ from those of {b_path}")
         for name, key in MEASURES.items():
             out.setdefault(name, []).append(c_row[key])
         out.setdefault("sum", []).append(sum(c_row["returns"].values()))

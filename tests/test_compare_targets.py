@@ -42,6 +42,9 @@ def test_refuses_files_of_other_seeds_or_counts(tmp_path):
         compare_targets.compare(base, [other_seed])
     with pytest.raises(SystemExit, match="one per seed"):
         compare_targets.compare(base, [other_seed, other_seed])
+    other_tasks = targets_file(tmp_path / "d.json", "cand", 0, {"move-ego-0-2": 1.0, "jump-2": 2.0})
+    with pytest.raises(SystemExit, match="tasks differ"):
+        compare_targets.compare(base, [other_tasks])
 
 
 def test_a_file_that_is_not_a_targets_output_is_named(tmp_path):
@@ -53,6 +56,10 @@ def test_a_file_that_is_not_a_targets_output_is_named(tmp_path):
     two_models.write_text(json.dumps({"a": {}, "b": {}, "settings": {}}))
     with pytest.raises(SystemExit, match="one model row"):
         compare_targets.model_row(two_models)
+    no_returns = tmp_path / "partial.json"
+    no_returns.write_text(json.dumps({"m": {"move-ego-0-2": 1.0}, "settings": {}}))
+    with pytest.raises(SystemExit, match="partial.json: the row 'm' has no beats_floors, goal_success"):
+        compare_targets.model_row(no_returns)
 
 
 def test_command_line_prints_each_model_with_its_mean(tmp_path):
