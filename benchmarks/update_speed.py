@@ -151,14 +151,15 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--sizes", nargs="+", default=["tiny", "small", "paper-S"])
     ap.add_argument("--gpu", action="store_true", help="also time on CUDA")
-    ap.add_argument("--compile", action="store_true", help="torch.compile the loss computation (GPU rows)")
+    ap.add_argument("--compile", action="store_true", help="also time torch.compile of the loss computation (GPU rows, "
+                    "after the eager ones: compiling takes minutes)")
     ap.add_argument("--bf16", action="store_true", help="also time the bf16-autocast switch (agent.bf16)")
     ap.add_argument("--near", action="store_true", help="also time the NEAR regulariser (agent.regulariser: near)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     devices = ["cpu"] + (["cuda"] if args.gpu and torch.cuda.is_available() else [])
     print(f"torch {torch.__version__}, {args.threads} CPU threads" + (f", {torch.cuda.get_device_name()}" if "cuda" in devices else ""))
-    print(f"{'size':8s} {'device':9s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} {'ratio':>6s} "
+    print(f"{'size':8s} {'device':14s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} {'ratio':>6s} "
           f"{'straightforward ms':>19s}")
     for preset in args.sizes:
         flops = count_flops(preset)
@@ -166,12 +167,14 @@ def main() -> None:
             reps = {"tiny": 20, "small": 10}.get(preset, 3) if dev == "cpu" else 20
             ref = matmul_reference(flops, dev, 3)
             naive = time_straightforward(*make(preset, "cpu", False), reps) * 1e3 if dev == "cpu" else float("nan")
-            variants = [(False, "discriminator")] + [(True, "discriminator")] * args.bf16 + [(False, "near")] * args.near
-            for bf16, regulariser in variants:
-                agent, batch, windows = make(preset, dev, args.compile and dev != "cpu", bf16, regulariser)
+            eager = [(False, False, "discriminator")] + [(True, False, "discriminator")] * args.bf16
+            compiled = [(bf16, True, reg) for bf16, _, reg in eager] if args.compile and dev != "cpu" else []
+            variants = eager + [(False, False, "near")] * args.near + compiled
+            for bf16, compile_, regulariser in variants:
+                agent, batch, windows = make(preset, dev, compile_, bf16, regulariser)
                 t = time_update(agent, batch, windows, dev, reps)
-                name = dev + ("+bf16" if bf16 else "") + ("+near" if regulariser == "near" else "")
-                print(f"{preset:8s} {name:9s} {SIZES[preset]:5d} {flops / 1e9:7.1f} {t * 1e3:10.1f} {ref * 1e3:14.1f} "
+                name = dev + ("+bf16" if bf16 else "") + ("+near" if regulariser == "near" else "") + ("+comp" if compile_ else "")
+                print(f"{preset:8s} {name:14s} {SIZES[preset]:5d} {flops / 1e9:7.1f} {t * 1e3:10.1f} {ref * 1e3:14.1f} "
                       f"{t / ref:6.2f} {naive:19.1f}", flush=True)
 
 

@@ -5,14 +5,14 @@
 #                          gymnasium and its deps, setuptools (builds fbcpr offline), requirements.txt (what to install)
 #   data/clips/deepmimic/  the DeepMimic clips (`fbcpr motions import`, cached after the first time)
 # Then prints what the lease copies (tree + carry) and fails above MAX_MIB.
-# Env: DEVICE_PY (3.12), WHEELS (.whl), SHARED (../shared), MAX_MIB (60).
+# Env: DEVICE_PY (3.12), WHEELS (.whl), SHARED (../shared), MAX_MIB (60), CLIPS (data/clips/deepmimic), SYNTHETIC.
 set -euo pipefail
 cd "$(git rev-parse --show-toplevel)"
 DEVICE_PY=${DEVICE_PY:-3.12}
 WHEELS=${WHEELS:-.whl}
 SHARED=${SHARED:-../shared}
 MAX_MIB=${MAX_MIB:-60}
-CLIPS=data/clips/deepmimic
+CLIPS=${CLIPS:-data/clips/deepmimic}  # data/clips/mixed: the shipped model's clips (with SYNTHETIC=1)
 command -v fbcpr > /dev/null || { echo "activate the project's venv first (fbcpr not found)" >&2; exit 1; }
 
 # The versions installed here, so that a model trained there is evaluated here on the same physics.
@@ -46,6 +46,9 @@ if ! ls "$SHARED"/mocap/deepmimic/motions/*.txt > /dev/null 2>&1; then
   exit 1
 fi
 nice -n 19 fbcpr motions import "$SHARED"/mocap/deepmimic/motions/*.txt --out "$CLIPS" > /dev/null
+if [ -n "${SYNTHETIC:-}" ] && ! ls "$CLIPS"/synthetic_*.npz > /dev/null 2>&1; then  # the recipe's synthetic clips
+  fbcpr motions synthetic --out "$CLIPS" > /dev/null
+fi
 echo "clips: $(ls "$CLIPS"/*.npz | wc -l) in $CLIPS"
 
 # What the lease copies: tracked files, untracked files git does not ignore, and the carried paths.

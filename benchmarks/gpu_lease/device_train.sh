@@ -3,7 +3,8 @@
 # beside the image's packages (torch with CUDA, numpy, ...), show the GPU, start training detached (setsid +
 # nohup, log in RUN_DIR.log, pid in RUN_DIR.pid) and return once it is updating, or has died.
 #   bash benchmarks/gpu_lease/device_train.sh CONFIG RUN_DIR
-# Env: FBCPR_DEVICE (cuda), FBCPR_STEPS (override train.total_env_steps), FBCPR_SETUP_ONLY=1 (install and check
+# Env: FBCPR_DEVICE (cuda), FBCPR_STEPS (override train.total_env_steps), FBCPR_INIT_FROM (a checkpoint to
+#      warm-start from: `pretrained` continues the shipped model), FBCPR_SETUP_ONLY=1 (install and check
 #      only), WHEELS (.whl), WATCH_SECONDS (180: how long to watch the start), PYTHON (python3).
 set -euo pipefail
 CONFIG=${1:?usage: device_train.sh CONFIG RUN_DIR}
@@ -71,6 +72,9 @@ echo "$VPY" > "$RUN.python"  # for device_wait.sh
 args=(train "$CONFIG" --out "$RUN" --device "${FBCPR_DEVICE:-cuda}" --no-progress)
 if [ -n "${FBCPR_STEPS:-}" ]; then
   args+=(--steps "$FBCPR_STEPS")
+fi
+if [ -n "${FBCPR_INIT_FROM:-}" ]; then
+  args+=(--init-from "$FBCPR_INIT_FROM")
 fi
 detach=(setsid nohup)  # its own session: the trainer outlives this call
 command -v setsid > /dev/null || detach=(nohup)

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from typing import Callable, Protocol
 
 import numpy as np
-from dm_control.utils.rewards import tolerance
 
 from humanoid_env.tasks.features import Features, as_obs_batch
 
@@ -33,6 +32,10 @@ ARM_BANDS = {"l": (0.0, 1.0, 0.2), "m": (1.3, 1.55, 0.1), "h": (1.8, np.inf, 0.2
 
 def _tol(x: np.ndarray, lo: float, hi: float, margin: float, sigmoid: str = "linear",
          at_margin: float = 0.0) -> np.ndarray:
+    # Imported here, not at the top: the training path names tasks (train.eval_tasks, checked by the config) without
+    # computing rewards, and must run where dm_control is absent (the GPU lease image, tests/test_training_deps.py).
+    from dm_control.utils.rewards import tolerance
+
     return tolerance(x, bounds=(lo, hi), margin=margin, sigmoid=sigmoid, value_at_margin=at_margin)
 
 
