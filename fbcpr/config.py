@@ -127,6 +127,10 @@ class EnvConfig:
     motions: str = _f("synthetic")  # humanoid: a folder of clips or one clip .npz; toy: "synthetic" (all demos) or demo names
     fall_prob: float = _f(0.2, PROB)
     stand_prob: float = _f(0.0, PROB)  # humanoid: share of training episodes that start from the standing rest pose
+    # humanoid: share of training episodes that start on a frame of the clips named in focus_clips (reference-state
+    # starts along a skill, e.g. [getup_facedown]: rising from half-way up is reachable by exploration)
+    focus_prob: float = _f(0.0, PROB)
+    focus_clips: list[str] = _f([])
     max_episode_steps: int = _f(300, _range(1, 10**7))
     action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
     # humanoid: truncate a training episode (not terminate: no reward or objective changes) once the pelvis has
@@ -300,6 +304,14 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if cfg.env.fall_prob + cfg.env.stand_prob > 1.0 + 1e-9:
         raise ConfigError(f"env.stand_prob: env.fall_prob + env.stand_prob must be <= 1, got "
                           f"{cfg.env.fall_prob} + {cfg.env.stand_prob}")
+    if cfg.env.fall_prob + cfg.env.stand_prob + cfg.env.focus_prob > 1.0 + 1e-9:
+        raise ConfigError(f"env.focus_prob: env.fall_prob + env.stand_prob + env.focus_prob must be <= 1, got "
+                          f"{cfg.env.fall_prob} + {cfg.env.stand_prob} + {cfg.env.focus_prob}")
+    if bool(cfg.env.focus_prob) != bool(cfg.env.focus_clips):
+        raise ConfigError("env.focus_clips: give clip names together with env.focus_prob > 0 (one without the other "
+                          f"does nothing), got focus_prob {cfg.env.focus_prob} and focus_clips {cfg.env.focus_clips}")
+    if cfg.env.focus_clips and cfg.env.name != "humanoid":
+        raise ConfigError("env.focus_clips: starts on chosen clips are a humanoid option")
     for key in ("fallen_terminates", "reset_fallen_once_up"):
         if getattr(cfg.env, key) and not cfg.env.reset_fallen_s:
             raise ConfigError(f"env.{key}: needs env.reset_fallen_s > 0 (how long fallen ends an episode)")

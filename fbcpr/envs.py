@@ -127,6 +127,19 @@ def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
     )
 
 
+def _focus_library(cfg: EnvConfig, lib: Any) -> Any:
+    """The clips of env.focus_clips, as a library of their own (each clip equally likely), or None."""
+    if not cfg.focus_clips:
+        return None
+    from motions.library import MotionLibrary
+
+    unknown = [n for n in cfg.focus_clips if n not in lib.names]
+    if unknown:
+        raise ConfigError(f"env.focus_clips: {unknown[0]!r} is not a clip of env.motions ({cfg.motions}); its clips "
+                          f"are {lib.names}")
+    return MotionLibrary([c for c in lib.clips if c.name in cfg.focus_clips])
+
+
 def _humanoid(cfg: EnvConfig, num_envs: int, threads: int | None = None) -> EnvBundle:
     from humanoid_env import NQ, NU, NV, OBS_DIM
     from humanoid_env.inits import make_init
@@ -156,7 +169,9 @@ def _humanoid(cfg: EnvConfig, num_envs: int, threads: int | None = None) -> EnvB
         return lambda next_obs, qpos, qvel: fn(next_obs, None, qpos, qvel)
 
     return EnvBundle(
-        env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib, stand_prob=cfg.stand_prob), max_episode_steps=cfg.max_episode_steps,
+        env=VectorHumanoidEnv(num_envs, init=make_init(cfg.fall_prob, mocap=lib, stand_prob=cfg.stand_prob,
+                                                       focus=_focus_library(cfg, lib), focus_prob=cfg.focus_prob),
+                              max_episode_steps=cfg.max_episode_steps,
                               action_mapping=cfg.action_mapping, num_threads=threads,
                               reset_fallen_after=reset_fallen_steps(cfg.reset_fallen_s),
                               fallen_terminates=cfg.fallen_terminates,

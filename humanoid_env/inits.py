@@ -149,12 +149,22 @@ class MixtureInit:
         return qpos, qvel
 
 
-def make_init(fall_prob: float, mocap: StateSource | None = None, stand_prob: float = 0.0) -> MixtureInit:
-    """Fall with probability fall_prob, the standing rest pose with probability stand_prob, otherwise MoCap states
-    (or the standing pose when no library is given). Standing starts are where balance is easiest to learn."""
+def make_init(fall_prob: float, mocap: StateSource | None = None, stand_prob: float = 0.0,
+              focus: StateSource | None = None, focus_prob: float = 0.0) -> MixtureInit:
+    """Fall with probability fall_prob, the standing rest pose with probability stand_prob, states of `focus` (a
+    few chosen clips, e.g. a getup clip: starts part-way through a skill that exploration alone does not reach)
+    with probability focus_prob, otherwise MoCap states (or the standing pose when no library is given). Standing
+    starts are where balance is easiest to learn."""
     if not 0.0 <= fall_prob <= 1.0:
         raise EnvError(f"fall_prob must be in [0, 1], got {fall_prob}")
     if not 0.0 <= stand_prob <= 1.0 - fall_prob + 1e-9:
         raise EnvError(f"stand_prob must be in [0, 1 - fall_prob] = [0, {1.0 - fall_prob:g}], got {stand_prob}")
+    if not 0.0 <= focus_prob <= 1.0 - fall_prob - stand_prob + 1e-9:
+        raise EnvError(f"focus_prob must be in [0, 1 - fall_prob - stand_prob] = "
+                       f"[0, {max(0.0, 1.0 - fall_prob - stand_prob):g}], got {focus_prob}")
+    if focus_prob > 0 and focus is None:
+        raise EnvError("focus_prob > 0 needs a focus state source")
     base = MocapInit(mocap) if mocap is not None else DefaultInit()
-    return MixtureInit([base, FallInit(), DefaultInit()], [max(0.0, 1.0 - fall_prob - stand_prob), fall_prob, stand_prob])
+    parts = [base, FallInit(), DefaultInit()] + ([MocapInit(focus)] if focus is not None else [])
+    weights = [max(0.0, 1.0 - fall_prob - stand_prob - focus_prob), fall_prob, stand_prob]
+    return MixtureInit(parts, weights + [focus_prob] * (focus is not None))

@@ -229,6 +229,10 @@ def test_mocap_and_mixture_inits():
     assert 0.4 < standing.mean() < 0.6 and 0.2 < (qpos[:, 0] >= 5).mean() < 0.4
     with pytest.raises(ValueError, match="stand_prob"):
         make_init(0.5, stand_prob=0.6)
+    with pytest.raises(ValueError, match="focus_prob"):
+        make_init(0.5, stand_prob=0.3, focus=_Library(), focus_prob=0.3)
+    with pytest.raises(ValueError, match="focus state source"):
+        make_init(0.5, focus_prob=0.3)
     with pytest.raises(ValueError, match="weight"):
         MixtureInit([DefaultInit()], [-1.0])
 

@@ -25,6 +25,10 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
     ({"env": {"fallen_terminates": True}}, "env.fallen_terminates"),          # without reset_fallen_s
     ({"env": {"reset_fallen_once_up": True}}, "env.reset_fallen_once_up"),    # without reset_fallen_s
     ({"env": {"fall_prob": 0.5, "stand_prob": 0.6}}, "env.stand_prob"),      # probabilities beyond 1
+    ({"env": {"fall_prob": 0.5, "stand_prob": 0.3, "focus_prob": 0.3, "focus_clips": ["getup"]}}, "env.focus_prob"),
+    ({"env": {"focus_prob": 0.3}}, "env.focus_clips"),                        # a share without clips
+    ({"env": {"focus_clips": ["getup"]}}, "env.focus_clips"),                 # clips without a share
+    ({"env": {"name": "toy", "focus_prob": 0.3, "focus_clips": ["a"]}}, "env.focus_clips"),  # humanoid only
     ({"train": {"device": "tpu"}}, "train.device"),
     ({"train": {"lr": float("nan")}}, "train.lr"),
     ({"env": {"name": "toy"}, "train": {"eval_every": 10, "eval_upright": 4}}, "train.eval_upright"),  # no humanoid

@@ -98,3 +98,25 @@ def test_env_motions_takes_one_clip_file_for_single_demonstration_imitation(tmp_
     one = make_env(EnvConfig(name="humanoid", motions=str(tmp_path / "y.npz")), 2, 0)
     assert one.library.names == ["y"]
     assert make_env(EnvConfig(name="humanoid", motions=str(tmp_path)), 2, 0).library.names == ["x", "y"]
+
+
+def test_focus_clips_start_their_share_of_episodes_on_the_named_clips(tmp_path):
+    from fbcpr.config import ConfigError, EnvConfig
+    from fbcpr.envs import make_env
+
+    for c in (_clip("x", 40, 1.0, tag=1), _clip("y", 60, 1.0, tag=2)):
+        save_clip(c, tmp_path / f"{c.name}.npz")
+    rng = np.random.default_rng(0)
+    cfg = EnvConfig(name="humanoid", motions=str(tmp_path), fall_prob=0.0, stand_prob=0.0, focus_prob=1.0,
+                    focus_clips=["y"])
+    qpos, _ = make_env(cfg, 2, 0).env.init.sample(rng, 200)
+    assert np.all(qpos[:, 1] == 2)  # every start is a frame of y (tag 2), none of x
+    assert len(np.unique(qpos[:, 0])) > 30  # frames spread along the clip
+    cfg.focus_prob, cfg.stand_prob = 0.25, 0.25
+    qpos, _ = make_env(cfg, 2, 0).env.init.sample(rng, 800)
+    # MoCap starts (0.5) split evenly between x and y (equal priorities); the focus share (0.25) goes to y alone
+    assert 0.18 < (qpos[:, 1] == 1).mean() < 0.32
+    assert 0.42 < (qpos[:, 1] == 2).mean() < 0.58
+    cfg.focus_clips = ["y", "z"]
+    with pytest.raises(ConfigError, match="env.focus_clips: 'z' is not a clip of env.motions"):
+        make_env(cfg, 2, 0)
