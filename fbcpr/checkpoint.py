@@ -215,10 +215,10 @@ def save_checkpoint(
         if trainer_state is not None:
             put(TRAINER_FILE, *trainer_state)
         if reward_buffer is not None:
-            missing = [k for k in REWARD_KEYS if k not in reward_buffer]
+            keys = REWARD_KEYS if reward_obs else STATE_KEYS
+            missing = [k for k in keys if k not in reward_buffer]
             if missing:
                 raise CheckpointError(f"reward_buffer: missing arrays {missing}")
-            keys = REWARD_KEYS if reward_obs else STATE_KEYS
             arrays = {k: torch.as_tensor(np.asarray(reward_buffer[k])).to(reward_dtype) for k in keys}
             finite = torch.stack([torch.isfinite(v.reshape(len(v), -1)).all(1) for v in arrays.values()]).all(0)
             put(REWARD_FILE, {k: v[finite] for k, v in arrays.items()})  # one inf row would break every reward prompt

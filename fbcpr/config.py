@@ -186,6 +186,9 @@ class TrainConfig:
     reward_buffer_size: int = _f(100_000, _range(0, 10**7))
     save_buffer: bool = _f(False)
     torch_threads: int = _f(0, _range(0, 1024))
+    # MuJoCo threads of the training envs; 0: all cores, split between the ranks of a torchrun on one machine.
+    # Set it when other runs share the machine (several seeds on one leased GPU: benchmarks/gpu_lease)
+    env_threads: int = _f(0, _range(0, 1024))
     dist_timeout_s: float = _f(600.0, _range(1.0, 86_400.0))  # torchrun runs: a rank gone this long is an error
     dist_backend: str = _f("auto", _check(lambda v: v in ("auto", "nccl", "gloo"), "must be auto, nccl or gloo"))
 

@@ -106,7 +106,8 @@ class Trainer:
                            "the run config")
         seed = tc.seed + r.rank  # this rank's envs and random streams (rank 0: those of a single process)
         # ranks on one machine share its cores for physics (one process: all of them, as MuJoCo's default)
-        threads = max(1, (os.cpu_count() or 1) // r.local_world_size) if r.local_world_size > 1 else None
+        threads = tc.env_threads or (max(1, (os.cpu_count() or 1) // r.local_world_size)
+                                     if r.local_world_size > 1 else None)
         self.bundle: EnvBundle = make_env(cfg.env, tc.num_envs, seed, threads)
         b = self.bundle
         for key, have in (("obs_dim", b.obs_dim), ("action_dim", b.action_dim)):

@@ -364,3 +364,21 @@ def test_wall_clock_of_training_adds_up_over_resumes(tmp_path):
     took = Trainer(tiny_cfg(), tmp_path, resume=True, progress=False).run(max_env_steps=40)["seconds"]
     later = wall(tmp_path)[len(first):]
     assert later and saved < later[0] and later[-1] <= saved + took
+
+
+@pytest.mark.parametrize("env_threads, want", [(0, None), (3, 3)])
+def test_env_threads_reach_the_env(tmp_path, monkeypatch, env_threads, want):
+    """train.env_threads caps the training envs' physics threads (runs sharing a machine); 0 keeps all cores."""
+    import fbcpr.trainer as trainer_mod
+
+    seen = []
+
+    real = trainer_mod.make_env
+
+    def spy(cfg, num_envs, seed, threads=None):
+        seen.append(threads)
+        return real(cfg, num_envs, seed, threads)
+
+    monkeypatch.setattr(trainer_mod, "make_env", spy)
+    Trainer(tiny_cfg(env_threads=env_threads), tmp_path, progress=False)
+    assert seen == [want]

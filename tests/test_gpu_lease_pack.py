@@ -33,14 +33,18 @@ def test_pack_fits_the_caps_and_unpacks_to_a_loadable_model(run_dir, tmp_path, m
     original = BFM.load(run_dir)
     half_bytes = sum(p.numel() * 2 for p in original.model.parameters())
     other_bytes = sum(b.numel() * b.element_size() for b in original.model.buffers())
-    monkeypatch.setattr(pack, "TOTAL_BYTES", half_bytes + other_bytes + pack.SLACK_BYTES + 1_000_000)
+    monkeypatch.setattr(pack, "TOTAL_BYTES", half_bytes + other_bytes + pack.SLACK_BYTES + 500_000)
     written = pack.pack(run_dir, tmp_path / "out", 50)
     assert 1 < len(written) and all(p.stat().st_size <= 100_000 for p in written)
     assert sum(p.stat().st_size for p in written) <= pack.TOTAL_BYTES
     path = pack.unpack(tmp_path / "out", tmp_path / "here")
     bfm = BFM.load(path)
     kept = len(bfm.reward_buffer["next_obs"])
-    assert 500 < kept < 3000  # trimmed to fit (1018 bytes a float16 state), not dropped
+    assert 1000 < kept < 3000  # trimmed to fit (302 bytes a float16 state without its observation), not dropped
+    want = original.reward_samples(kept, seed=0)[0]  # the rows pack drew
+    for k in ("qpos", "qvel"):
+        np.testing.assert_allclose(bfm.reward_buffer[k], want[k], rtol=2**-10, atol=1e-6)
+    np.testing.assert_allclose(bfm.reward_buffer["next_obs"], want["next_obs"], atol=0.02)  # rebuilt from the states
     for (name, got), want in zip(bfm.model.state_dict().items(), original.model.state_dict().values()):
         assert got.dtype == want.dtype  # an ordinary float32 checkpoint again
         torch.testing.assert_close(got, want, rtol=2**-11, atol=1e-7, msg=name)  # float16 rounding at most

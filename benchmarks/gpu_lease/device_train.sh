@@ -4,8 +4,10 @@
 # nohup, log in RUN_DIR.log, pid in RUN_DIR.pid) and return once it is updating, or has died.
 #   bash benchmarks/gpu_lease/device_train.sh CONFIG RUN_DIR
 # Env: FBCPR_DEVICE (cuda), FBCPR_STEPS (override train.total_env_steps), FBCPR_INIT_FROM (a checkpoint to
-#      warm-start from: `pretrained` continues the shipped model), FBCPR_SETUP_ONLY=1 (install and check
-#      only), WHEELS (.whl), WATCH_SECONDS (180: how long to watch the start), PYTHON (python3).
+#      warm-start from: `pretrained` continues the shipped model), FBCPR_SEEDS (e.g. "0 1 2": one trainer per
+#      training seed, at most 3, sharing the GPU and splitting the cores; run dirs RUN_DIR-s<seed>, listed in
+#      RUN_DIR.runs for device_wait.sh), FBCPR_SETUP_ONLY=1 (install and check only), WHEELS (.whl),
+#      WATCH_SECONDS (180: how long to watch the start), PYTHON (python3).
 set -euo pipefail
 CONFIG=${1:?usage: device_train.sh CONFIG RUN_DIR}
 RUN=${2:?usage: device_train.sh CONFIG RUN_DIR}
@@ -13,9 +15,25 @@ WHEELS=${WHEELS:-.whl}
 WATCH_SECONDS=${WATCH_SECONDS:-180}
 PYTHON=${PYTHON:-$(command -v python3 || command -v python)}
 start=$SECONDS
-if [ -e "$RUN" ] && [ -z "${FBCPR_SETUP_ONLY:-}" ]; then
-  echo "$RUN exists already: give a new run dir" >&2
+read -ra SEEDS <<< "${FBCPR_SEEDS:-}"
+if [ "${#SEEDS[@]}" -gt 3 ]; then
+  echo "FBCPR_SEEDS: at most 3 seeds (a call returns 8 files: a part and a metrics.csv per run, and status.txt)" >&2
   exit 1
+fi
+RUNS=("$RUN")
+if [ "${#SEEDS[@]}" -gt 0 ]; then
+  RUNS=()
+  for s in "${SEEDS[@]}"; do
+    RUNS+=("$RUN-s$s")
+  done
+fi
+if [ -z "${FBCPR_SETUP_ONLY:-}" ]; then
+  for r in "$RUN" "${RUNS[@]}"; do
+    if [ -e "$r" ]; then
+      echo "$r exists already: give a new run dir" >&2
+      exit 1
+    fi
+  done
 fi
 
 # A venv over the image's Python keeps its packages visible and untouched; --without-pip needs no ensurepip: the
@@ -68,8 +86,7 @@ if [ -n "${FBCPR_SETUP_ONLY:-}" ]; then
   exit 0
 fi
 mkdir -p "$(dirname "$RUN")"
-echo "$VPY" > "$RUN.python"  # for device_wait.sh
-args=(train "$CONFIG" --out "$RUN" --device "${FBCPR_DEVICE:-cuda}" --no-progress)
+args=(--device "${FBCPR_DEVICE:-cuda}" --no-progress)
 if [ -n "${FBCPR_STEPS:-}" ]; then
   args+=(--steps "$FBCPR_STEPS")
 fi
@@ -78,32 +95,59 @@ if [ -n "${FBCPR_INIT_FROM:-}" ]; then
 fi
 detach=(setsid nohup)  # its own session: the trainer outlives this call
 command -v setsid > /dev/null || detach=(nohup)
-PYTHONUNBUFFERED=1 "${detach[@]}" "$VPY" -m fbcpr.cli.app "${args[@]}" > "$RUN.log" 2>&1 < /dev/null &
-pid=$!
-echo "$pid" > "$RUN.pid"
-echo "training: pid $pid, log $RUN.log, started $((SECONDS - start)) s after this script"
+printf '%s\n' "${RUNS[@]}" > "$RUN.runs"  # for device_wait.sh
+for i in "${!RUNS[@]}"; do
+  r=${RUNS[$i]}
+  cfg=$CONFIG
+  if [ "${#SEEDS[@]}" -gt 0 ]; then
+    # the config with this run's seed and an equal share of the cores, beside it so that its relative paths hold
+    cfg="$(dirname "$CONFIG")/.$(basename "$CONFIG" .yaml)-s${SEEDS[$i]}.yaml"
+    "$VPY" - "$CONFIG" "$cfg" "${SEEDS[$i]}" "${#SEEDS[@]}" << 'EOF'
+import os, sys, yaml
+src, dst, seed, n = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+cfg = yaml.safe_load(open(src))
+share = max(1, (os.cpu_count() or 1) // n)
+cfg.setdefault("train", {}).update(seed=seed, torch_threads=share, env_threads=share)
+yaml.safe_dump(cfg, open(dst, "w"), sort_keys=False)
+print(f"{dst}: train.seed {seed}, {share} torch and {share} MuJoCo threads")
+EOF
+  fi
+  echo "$VPY" > "$r.python"  # for device_wait.sh
+  PYTHONUNBUFFERED=1 "${detach[@]}" "$VPY" -m fbcpr.cli.app train "$cfg" --out "$r" "${args[@]}" > "$r.log" 2>&1 < /dev/null &
+  echo "$!" > "$r.pid"
+  echo "training: pid $!, log $r.log, started $((SECONDS - start)) s after this script"
+done
 
 # Watch the start: the first gradient updates come after the random warm-up.
-metric() { awk -F, -v k="$1" '$1 == k { v = $2 } END { print v }' "$RUN/metrics.csv" 2>/dev/null; }
+metric() { awk -F, -v k="$1" '$1 == k { v = $2 } END { print v }' "$2/metrics.csv" 2>/dev/null; }
 watched=0
 while [ "$watched" -lt "$WATCH_SECONDS" ]; do
   sleep 5
   watched=$((watched + 5))
-  if ! kill -0 "$pid" 2> /dev/null; then
-    echo "training exited after ${watched} s; log tail:" >&2
-    tail -n 40 "$RUN.log" >&2
-    if [ -f "$RUN/summary.json" ]; then  # a short run (FBCPR_STEPS) that finished
-      exit 0
+  updating=0
+  for r in "${RUNS[@]}"; do
+    if ! kill -0 "$(cat "$r.pid")" 2> /dev/null; then
+      if [ -f "$r/summary.json" ]; then  # a short run (FBCPR_STEPS) that finished
+        updating=$((updating + 1))
+        continue
+      fi
+      echo "training in $r exited after ${watched} s; log tail:" >&2
+      tail -n 40 "$r.log" >&2
+      exit 1
     fi
-    exit 1
-  fi
-  if awk -v u="$(metric updates)" 'BEGIN { exit !(u + 0 > 0) }'; then
+    if awk -v u="$(metric updates "$r")" 'BEGIN { exit !(u + 0 > 0) }'; then
+      updating=$((updating + 1))
+    fi
+  done
+  if [ "$updating" -eq "${#RUNS[@]}" ]; then
     break
   fi
 done
-echo "after ${watched} s: env_steps $(metric env_steps), updates $(metric updates), env steps/s $(metric env_steps_per_s)," \
-     "fb_loss $(metric fb_loss), actor_loss $(metric actor_loss)"
-tail -n 20 "$RUN.log"
+for r in "${RUNS[@]}"; do
+  echo "$r after ${watched} s: env_steps $(metric env_steps "$r"), updates $(metric updates "$r"), env steps/s" \
+       "$(metric env_steps_per_s "$r"), fb_loss $(metric fb_loss "$r"), actor_loss $(metric actor_loss "$r")"
+  tail -n 20 "$r.log"
+done
 if command -v nvidia-smi > /dev/null; then
   nvidia-smi --query-gpu=utilization.gpu,memory.used,memory.total --format=csv
 fi

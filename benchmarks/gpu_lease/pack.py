@@ -3,7 +3,9 @@
 A paper-S model is 73.5 MiB in float32, more than one call returns. So the newest checkpoint of a run travels as
 its network parameters in float16 (36.8 MiB; relative rounding <= 2^-11, the normaliser's statistics and any
 tensor float16 cannot hold stay float32), its config, and a float16 subsample of its reward buffer sized to fit,
-in one tar split into parts. `unpack` turns them back into an ordinary (float32) inference checkpoint:
+in one tar split into parts. The reward states travel without their observations (qpos and qvel, 302 bytes a
+state instead of 1,018), as `fbcpr export --states-only` stores them: loading rebuilds the observations. `unpack`
+turns them back into an ordinary (float32 weights) inference checkpoint:
 
     python benchmarks/gpu_lease/pack.py pack RUN_DIR OUT_DIR [--parts 6]    # on the device
     python benchmarks/gpu_lease/pack.py unpack FILES_DIR DEST_DIR           # here: DEST_DIR/step_XXXXXXXXXX
@@ -29,7 +31,7 @@ def pack(run_dir: Path, out_dir: Path, parts: int) -> list[Path]:
     from safetensors.torch import save
 
     from fbcpr.bfm import BFM, resolve_checkpoint
-    from fbcpr.checkpoint import CONFIG_FILE
+    from fbcpr.checkpoint import CONFIG_FILE, MAX_REBUILT_STATES, STATE_KEYS
 
     ckpt = resolve_checkpoint(run_dir)
     bfm = BFM.load(ckpt)
@@ -40,13 +42,14 @@ def pack(run_dir: Path, out_dir: Path, parts: int) -> list[Path]:
         weights[name] = half if torch.isfinite(half).all() else t
     room = min(parts * PART_BYTES, TOTAL_BYTES) - SLACK_BYTES - sum(t.numel() * t.element_size() for t in weights.values())
     buf = bfm.reward_buffer
-    keep = None if buf is None else min(len(buf["next_obs"]), room // (2 * sum(v.shape[1] for v in buf.values())))
+    keep = None if buf is None else min(len(buf["next_obs"]), MAX_REBUILT_STATES,
+                                        room // (2 * sum(buf[k].shape[1] for k in STATE_KEYS)))
     if room < 0 or keep == 0:
         raise SystemExit(f"pack: {ckpt} does not fit in {parts} parts of {PART_BYTES} bytes")
     files = {WEIGHTS: save(weights), CONFIG: (ckpt / CONFIG_FILE).read_bytes()}
     if buf is not None:
         sample = bfm.reward_samples(keep, seed=0)[0]  # as `fbcpr export --reward-samples` draws them
-        files[REWARDS] = save({k: torch.as_tensor(v).half() for k, v in sample.items()})
+        files[REWARDS] = save({k: torch.as_tensor(sample[k]).half() for k in STATE_KEYS})
     blob = io.BytesIO()
     with tarfile.open(fileobj=blob, mode="w") as tar:
         for fname, data in files.items():
@@ -100,7 +103,8 @@ def unpack(files_dir: Path, dest: Path) -> Path:
     weights = {k: v.float() if v.dtype == torch.float16 else v for k, v in load(files[WEIGHTS]).items()}
     load_state_strict(model, weights, f"{name}/{WEIGHTS}")
     rewards = load(files[REWARDS]) if REWARDS in files else None
-    path = save_checkpoint(dest / name, model, cfg, reward_buffer=rewards, reward_dtype=torch.float16)
+    path = save_checkpoint(dest / name, model, cfg, reward_buffer=rewards, reward_dtype=torch.float16,
+                           reward_obs=False)
     bfm = BFM.load(path)
     states = len(bfm.reward_buffer["next_obs"]) if bfm.reward_buffer is not None else 0
     print(f"unpacked {path}: z_dim {bfm.z_dim}, action mapping {bfm.action_mapping}, {states} reward states")
