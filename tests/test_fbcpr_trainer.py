@@ -372,7 +372,6 @@ def test_env_threads_reach_the_env(tmp_path, monkeypatch, env_threads, want):
     import fbcpr.trainer as trainer_mod
 
     seen = []
-
     real = trainer_mod.make_env
 
     def spy(cfg, num_envs, seed, threads=None):

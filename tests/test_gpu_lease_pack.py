@@ -41,10 +41,10 @@ def test_pack_fits_the_caps_and_unpacks_to_a_loadable_model(run_dir, tmp_path, m
     bfm = BFM.load(path)
     kept = len(bfm.reward_buffer["next_obs"])
     assert 1000 < kept < 3000  # trimmed to fit (302 bytes a float16 state without its observation), not dropped
-    want = original.reward_samples(kept, seed=0)[0]  # the rows pack drew
+    drawn = original.reward_samples(kept, seed=0)[0]  # the rows pack drew
     for k in ("qpos", "qvel"):
-        np.testing.assert_allclose(bfm.reward_buffer[k], want[k], rtol=2**-10, atol=1e-6)
-    np.testing.assert_allclose(bfm.reward_buffer["next_obs"], want["next_obs"], atol=0.02)  # rebuilt from the states
+        np.testing.assert_allclose(bfm.reward_buffer[k], drawn[k], rtol=2**-10, atol=1e-6)
+    np.testing.assert_allclose(bfm.reward_buffer["next_obs"], drawn["next_obs"], atol=0.02)  # rebuilt from the states
     for (name, got), want in zip(bfm.model.state_dict().items(), original.model.state_dict().values()):
         assert got.dtype == want.dtype  # an ordinary float32 checkpoint again
         torch.testing.assert_close(got, want, rtol=2**-11, atol=1e-7, msg=name)  # float16 rounding at most
