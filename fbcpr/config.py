@@ -179,6 +179,11 @@ class TrainConfig:
     # retention spares: a policy that unlearns a skill later in the run keeps its best checkpoint
     keep_best: str = _f("", _check(lambda v: v == "" or v.startswith("eval/"), "must be '' or an eval/ metric"))
     keep_best_mode: str = _f("max", _check(lambda v: v in ("max", "min"), "must be 'max' or 'min'"))
+    # minimum values an evaluation must reach to compete for checkpoints/best, e.g. {eval/upright_s: 10,
+    # eval/upright_pushed_s: 10}: the best walk among evaluations that still stand, not the best walk of a run whose
+    # stand comes and goes (docs/results.md section 24)
+    keep_best_requires: dict[str, float] = _f({}, _check(lambda d: all(k.startswith("eval/") for k in d),
+                                                         "must name eval/ metrics"))
     checkpoint_every: int = _f(1_000_000, NON_NEGATIVE)
     keep_checkpoints: int = _f(3, POSITIVE)
     keep_every: int = _f(0, NON_NEGATIVE)
@@ -242,6 +247,13 @@ def _type_ok(value: Any, tp: Any) -> tuple[bool, Any]:
         return math.isfinite(float(value)), float(value)
     if tp is str:
         return isinstance(value, str), value
+    if origin is dict:
+        key_tp, value_tp = typing.get_args(tp)
+        if not isinstance(value, dict):
+            return False, value
+        checked = {k: _type_ok(v, value_tp) for k, v in value.items()}
+        ok = all(_type_ok(k, key_tp)[0] for k in value) and all(ok for ok, _ in checked.values())
+        return ok, {k: v for k, (_, v) in checked.items()}
     if origin is list:
         (item,) = typing.get_args(tp)
         if not isinstance(value, list):
@@ -329,13 +341,10 @@ def config_from_dict(data: dict[str, Any]) -> Config:
             raise ConfigError(f"train.{key}: prompting a reward needs a reward-inference sample; set "
                               "train.reward_buffer_size > 0")
     _check_eval_tasks(tc.eval_tasks)
-    if tc.keep_best and not tc.eval_every:
-        raise ConfigError(f"train.keep_best: {tc.keep_best!r} comes from evaluations; set train.eval_every > 0")
-    if tc.keep_best.startswith("eval/upright") and not tc.eval_upright:
-        raise ConfigError(f"train.keep_best: {tc.keep_best!r} is logged only with train.eval_upright > 0")
-    if tc.keep_best.startswith(("eval/return/", "eval/goal")) and not _logs_task_metric(tc):
-        raise ConfigError(f"train.keep_best: {tc.keep_best!r} is logged only for a reward task or goal pose of "
-                          f"train.eval_tasks (now {tc.eval_tasks})")
+    if tc.keep_best_requires and not tc.keep_best:
+        raise ConfigError("train.keep_best_requires: minimums for the best checkpoint need train.keep_best")
+    for key, metric in [("keep_best", tc.keep_best)] + [("keep_best_requires", m) for m in tc.keep_best_requires]:
+        _check_logged(tc, key, metric)
     if cfg.env.npmp is not None and (cfg.algorithm != "td3" or cfg.agent.reward.imitation):
         raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
                           "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")
@@ -359,13 +368,26 @@ def _check_eval_tasks(names: list[str]) -> None:
         raise ConfigError(f"train.eval_tasks: a name is given twice in {names}")
 
 
-def _logs_task_metric(tc: TrainConfig) -> bool:
-    """Whether `train.keep_best` names an eval/return/ or eval/goal metric that `train.eval_tasks` logs."""
+def _check_logged(tc: TrainConfig, key: str, metric: str) -> None:
+    """`train.<key>` names `metric`, which the run's evaluations must log (custom eval hooks' metrics pass)."""
+    if not metric:
+        return
+    if not tc.eval_every:
+        raise ConfigError(f"train.{key}: {metric!r} comes from evaluations; set train.eval_every > 0")
+    if metric.startswith("eval/upright") and not tc.eval_upright:
+        raise ConfigError(f"train.{key}: {metric!r} is logged only with train.eval_upright > 0")
+    if metric.startswith(("eval/return/", "eval/goal")) and not _logs_task_metric(tc, metric):
+        raise ConfigError(f"train.{key}: {metric!r} is logged only for a reward task or goal pose of "
+                          f"train.eval_tasks (now {tc.eval_tasks})")
+
+
+def _logs_task_metric(tc: TrainConfig, metric: str) -> bool:
+    """Whether `metric` is an eval/return/ or eval/goal metric that `train.eval_tasks` logs."""
     from humanoid_env.tasks import GOALS
 
     goals = [n for n in tc.eval_tasks if n in GOALS]
     logged = {f"eval/return/{n}" for n in tc.eval_tasks if n not in GOALS} | {f"eval/goal/{n}" for n in goals}
-    return tc.keep_best in logged | ({"eval/goal_success"} if goals else set())
+    return metric in logged | ({"eval/goal_success"} if goals else set())
 
 
 def model_config_from_dict(data: dict[str, Any]) -> ModelConfig:

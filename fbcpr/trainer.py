@@ -320,8 +320,9 @@ class Trainer:
         if not tc.keep_best:
             return False
         value = metrics.get(tc.keep_best, math.nan)
-        better = math.isfinite(value) and (self.best is None or (value > self.best[0] if tc.keep_best_mode == "max"
-                                                                 else value < self.best[0]))
+        eligible = all(metrics.get(k, math.nan) >= floor for k, floor in tc.keep_best_requires.items())  # NaN: no
+        better = eligible and math.isfinite(value) and (
+            self.best is None or (value > self.best[0] if tc.keep_best_mode == "max" else value < self.best[0]))
         if not self.replicas.sum(np.array([float(better and self.replicas.is_main)]))[0]:
             return False
         if self.replicas.is_main:
@@ -464,6 +465,7 @@ class Trainer:
             "buffer": {"size": len(self.buffer), "pos": self.buffer.pos},
             "env_rng": self.bundle.env.np_random.bit_generator.state,
             "best": None if self.best is None else {"metric": tc.keep_best, "mode": tc.keep_best_mode,
+                                                    "requires": dict(tc.keep_best_requires),
                                                     "value": self.best[0], "checkpoint": self.best[1]},
         })
         reward, meta["reward_represents"] = self._reward_sample()
@@ -567,8 +569,9 @@ class Trainer:
             self.next_log, self.emd = meta["next_log"], meta["emd"]
             self._wall_before = float(meta.get("wall_s", 0.0))  # checkpoints from before it was recorded: 0
             best = meta.get("best")
-            if best is not None and (best["metric"], best["mode"]) == (tc.keep_best, tc.keep_best_mode):
-                self.best = (float(best["value"]), str(best["checkpoint"]))  # another metric starts a new record
+            record = (tc.keep_best, tc.keep_best_mode, tc.keep_best_requires)
+            if best is not None and (best["metric"], best["mode"], best.get("requires", {})) == record:
+                self.best = (float(best["value"]), str(best["checkpoint"]))  # another criterion starts a new record
             self.bundle.library.priorities = tensors["priorities"].numpy().copy()
             self._saved_at = self.env_steps
             if not ckpt.has(REPLAY_FILE):  # every rank: all of them start on empty shards, and must agree to update

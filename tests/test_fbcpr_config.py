@@ -38,6 +38,15 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
     ({"train": {"keep_best": "eval/tracking_emd"}}, "train.keep_best"),                     # never evaluated
     ({"train": {"eval_every": 10, "keep_best": "eval/upright_s"}}, "train.keep_best"),       # never measured
     ({"train": {"eval_every": 10, "keep_best": "eval/x", "keep_best_mode": "top"}}, "train.keep_best_mode"),
+    ({"train": {"eval_every": 10, "keep_best_requires": {"eval/x": 1}}}, "train.keep_best_requires"),  # no keep_best
+    ({"train": {"eval_every": 10, "keep_best": "eval/x", "keep_best_requires": {"x": 1}}},
+     "train.keep_best_requires"),                                                         # not an eval/ metric
+    ({"train": {"eval_every": 10, "keep_best": "eval/x", "keep_best_requires": {"eval/upright_s": 10}}},
+     "train.keep_best_requires"),                                                         # never measured
+    ({"train": {"eval_every": 10, "keep_best": "eval/x", "keep_best_requires": {"eval/y": "high"}}},
+     "train.keep_best_requires"),                                                         # not a number
+    ({"train": {"eval_every": 10, "keep_best": "eval/x", "keep_best_requires": ["eval/y"]}},
+     "train.keep_best_requires"),                                                         # not a mapping
     ({"model": [1, 2]}, "model"),
     ({"train": {"eval_every": 10, "eval_tasks": "jump-2"}}, "train.eval_tasks"),            # not a list
     ({"train": {"eval_every": 10, "eval_tasks": ["jump-2", 3]}}, "train.eval_tasks"),       # not all names

@@ -54,7 +54,7 @@ def test_best_checkpoint_is_the_best_evaluation_and_survives_retention(tmp_path,
     assert [v for _, v in scores] == values
     name, best = best_of(tmp_path)
     assert name == f"step_{scores[best_at][0]:010d}"
-    assert best == {"metric": "eval/score", "mode": mode, "value": values[best_at], "checkpoint": name}
+    assert best == {"metric": "eval/score", "mode": mode, "requires": {}, "value": values[best_at], "checkpoint": name}
     # keep_checkpoints: 1 removes every other checkpoint, the best one stays beside the latest
     kept = sorted(p.name for p in (tmp_path / "checkpoints").glob("step_*"))
     assert kept == sorted({name, (tmp_path / "checkpoints" / "latest").read_text()})
@@ -77,6 +77,22 @@ def test_a_resume_remembers_the_best_value(tmp_path):
     shutil.rmtree(tmp_path / "a" / "checkpoints" / name)  # a lost best folder is an error, not a silent fallback
     with pytest.raises(CheckpointError, match=name):
         make_agent(str(tmp_path / "a" / "checkpoints" / "best"))
+
+
+def test_required_minimums_exclude_evaluations_from_the_best(tmp_path):
+    # (score, stand) per evaluation: the highest scores come from evaluations that no longer stand
+    evals = iter([(1.0, 10.0), (3.0, 2.0), (2.0, 10.0), (5.0, 9.9), (float("nan"), 10.0)])
+    hook = lambda agent: dict(zip(("score", "stand"), next(evals)))
+    cfg = toy_cfg(keep_best_requires={"eval/stand": 10})
+    Trainer(cfg, tmp_path, evaluate=hook, progress=False).run(max_env_steps=200)
+    name, best = best_of(tmp_path)
+    assert name == f"step_{logged(tmp_path, 'eval/score')[2][0]:010d}"
+    assert best == {"metric": "eval/score", "mode": "max", "requires": {"eval/stand": 10.0}, "value": 2.0,
+                    "checkpoint": name}
+    # a resume with other minimums starts a new record: 1.5 does not beat 2.0, but the record was for {stand: 10}
+    Trainer(toy_cfg(keep_best_requires={"eval/stand": 5}), tmp_path, resume=True,
+            evaluate=lambda agent: {"score": 1.5, "stand": 6.0}, progress=False).run(max_env_steps=40)
+    assert best_of(tmp_path)[1]["value"] == 1.5
 
 
 @pytest.mark.parametrize("algorithm", ["td3", "fb_cpr"])
