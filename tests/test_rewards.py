@@ -9,6 +9,7 @@ from humanoid_env.model import NV, load_model
 from humanoid_env.observation import OBS_DIM, observe
 from humanoid_env.tasks import CATEGORIES, TASKS, get_reward, goal_qpos, list_families, task_category
 from humanoid_env.tasks.goals import ARMS_DOWN, ARMS_FORWARD, GoalPose, _merge, pose_qpos
+from humanoid_env.tasks.features import Features
 from humanoid_env.tasks.rewards import RaiseArms
 
 MODEL = load_model()
@@ -62,7 +63,7 @@ def test_every_paper_task_exists_under_its_name():
 def test_values_in_unit_interval_on_random_and_extreme_observations():
     rng = np.random.default_rng(0)
     obs = np.concatenate([rng.normal(size=(200, OBS_DIM)), 50 * rng.normal(size=(50, OBS_DIM))]).astype(np.float32)
-    for name in TASKS + ("headstand", "move-ego-45-3", "jump-1.7"):
+    for name in TASKS + ("headstand", "move-ego-45-3", "jump-1.7", "head-1.4"):
         v = get_reward(name)(obs)
         assert v.shape == (250,) and v.dtype == np.float32
         assert np.all((v >= 0) & (v <= 1)), name
@@ -104,6 +105,17 @@ def test_arm_heights():
         assert max(v for k, v in scores.items() if k != want) < 0.1, (goal, scores)
     moving = state(goal_qpos("arms_stretch"), lin=(1.5, 0, 0))
     assert 0.45 < r("raisearms-h-h", moving) < 0.55  # needless movement halves the reward
+
+
+def test_head_height_pays_more_for_every_posture_further_up():
+    poses = ["lie_front", "sit_on_ground", "kneel_both", "crouch_low", "crouch_medium", "crouch_high"]
+    heads = [Features(state(goal_qpos(p))[None]).z("Head")[0] for p in poses] + [Features(state(STAND)[None]).z("Head")[0]]
+    values = [r("head-1.4", state(goal_qpos(p))) for p in poses] + [r("head-1.4", state(STAND))]
+    order = np.argsort(heads)
+    assert np.all(np.diff(np.asarray(values)[order]) > 0), dict(zip(poses + ["stand"], values))
+    assert values[0] < 0.2 and values[-1] == 1.0
+    assert abs(r("head-1.4", state(goal_qpos("kneel_both"))) - heads[2] / 1.4) < 1e-5  # linear below 1.4 m
+    assert task_category("head-1.4") == "Stand"
 
 
 def test_ground_poses():

@@ -291,6 +291,22 @@ class Headstand(_Reward):
 
 
 @dataclass(frozen=True)
+class HeadHeight(_Reward):
+    """Head at or above `height` m, linearly from 0 with the head on the floor: not a task of the paper but a
+    reward for getting up, in which no posture on the floor pays more than a higher one (docs/results.md
+    section 24: a reward that pays for floor postures holds a single-task agent on the floor)."""
+
+    height: float
+
+    @property
+    def name(self) -> str:
+        return f"head-{_fmt(self.height)}"
+
+    def compute(self, f: Features) -> np.ndarray:
+        return _tol(f.z("Head"), self.height, np.inf, self.height)
+
+
+@dataclass(frozen=True)
 class Product(_Reward):
     """All terms at once: the product of their values (written `a*b`)."""
 
@@ -359,6 +375,7 @@ FAMILIES: dict[str, tuple[re.Pattern[str], Callable[..., _Reward]]] = {
         re.compile(rf"crawl-({_NUM})-({_NUM})-([ud])"), lambda h, s, face: Crawl(float(h), float(s), face)),
     "handstand": (re.compile(r"handstand"), Handstand),
     "headstand": (re.compile(r"headstand"), Headstand),
+    "head-{height}": (re.compile(rf"head-({_NUM})"), lambda h: HeadHeight(float(h))),
 }
 
 
@@ -429,7 +446,7 @@ def task_category(name: str) -> str:
     reward = get_reward(name)
     by_type = {Move: "Locomotion", Jump: "Jump", Rotate: "Rotation", RaiseArms: "RaiseArms", Crouch: "On-Ground",
                SitOnGround: "On-Ground", LieOnGround: "On-Ground", Split: "On-Ground", Crawl: "Crawl",
-               Handstand: "Handstand", Headstand: "Handstand", MoveAndRaiseArms: "Composite"}
+               Handstand: "Handstand", Headstand: "Handstand", HeadHeight: "Stand", MoveAndRaiseArms: "Composite"}
     if isinstance(reward, Move):
         return ("LocomLow" if reward.low else "Locomotion") if reward.speed else "Stand"
     return by_type.get(type(reward), "Composite")
