@@ -14,7 +14,20 @@ import argparse
 import numpy as np
 
 from humanoid_env.env import HumanoidEnv
-from motions.clip import load_clip
+from motions.clip import Clip, load_clip
+
+
+def playback(env: HumanoidEnv, clip: Clip, start: int, after: int) -> np.ndarray:
+    """Pelvis heights, one per control step, from the clip's frame `start` under its later frames' joint angles as
+    PD targets, and then `after` steps holding the last frame's."""
+    env.reset(options={"qpos": clip.qpos[start], "qvel": clip.qvel[start]})
+    heights = []
+    for t in range(start + 1, clip.n_frames + after):
+        _, _, terminated, _, info = env.step(env.action_map.from_angles(clip.qpos[min(t, clip.n_frames - 1), 7:]))
+        heights.append(info["qpos"][2])
+        if terminated:
+            break
+    return np.asarray(heights)
 
 
 def main() -> None:
@@ -30,14 +43,8 @@ def main() -> None:
     print(f"{clip.name}: {clip.n_frames} frames; pelvis height (m) under the clip's joint angles as open-loop targets")
     print(f"{'start frame':>12s} {'clip pelvis':>12s} {'highest':>8s} {'final':>6s}")
     for k in args.starts:
-        env.reset(options={"qpos": clip.qpos[k], "qvel": clip.qvel[k]})
-        heights = []
-        for t in range(k + 1, clip.n_frames + args.after):
-            _, _, terminated, _, info = env.step(env.action_map.from_angles(clip.qpos[min(t, clip.n_frames - 1), 7:]))
-            heights.append(info["qpos"][2])
-            if terminated:
-                break
-        print(f"{k:12d} {clip.qpos[k, 2]:12.2f} {max(heights):8.2f} {heights[-1]:6.2f}")
+        heights = playback(env, clip, k, args.after)
+        print(f"{k:12d} {clip.qpos[k, 2]:12.2f} {heights.max():8.2f} {heights[-1]:6.2f}")
 
 
 if __name__ == "__main__":
