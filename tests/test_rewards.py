@@ -8,8 +8,8 @@ import pytest
 from humanoid_env.model import NV, load_model
 from humanoid_env.observation import OBS_DIM, observe
 from humanoid_env.tasks import CATEGORIES, TASKS, get_reward, goal_qpos, list_families, task_category
-from humanoid_env.tasks.goals import ARMS_DOWN, ARMS_FORWARD, GoalPose, _merge, pose_qpos
 from humanoid_env.tasks.features import Features
+from humanoid_env.tasks.goals import ARMS_DOWN, ARMS_FORWARD, GoalPose, _merge, pose_qpos
 from humanoid_env.tasks.rewards import RaiseArms
 
 MODEL = load_model()
@@ -109,12 +109,13 @@ def test_arm_heights():
 
 def test_head_height_pays_more_for_every_posture_further_up():
     poses = ["lie_front", "sit_on_ground", "kneel_both", "crouch_low", "crouch_medium", "crouch_high"]
-    heads = [Features(state(goal_qpos(p))[None]).z("Head")[0] for p in poses] + [Features(state(STAND)[None]).z("Head")[0]]
-    values = [r("head-1.4", state(goal_qpos(p))) for p in poses] + [r("head-1.4", state(STAND))]
+    states = np.stack([state(goal_qpos(p)) for p in poses] + [state(STAND)])
+    heads = Features(states).z("Head")
+    values = get_reward("head-1.4")(states)
     order = np.argsort(heads)
-    assert np.all(np.diff(np.asarray(values)[order]) > 0), dict(zip(poses + ["stand"], values))
+    assert np.all(np.diff(values[order]) > 0), dict(zip(poses + ["stand"], values))
     assert values[0] < 0.2 and values[-1] == 1.0
-    assert abs(r("head-1.4", state(goal_qpos("kneel_both"))) - heads[2] / 1.4) < 1e-5  # linear below 1.4 m
+    assert abs(values[2] - heads[2] / 1.4) < 1e-5  # linear below 1.4 m (kneel_both)
     assert task_category("head-1.4") == "Stand"
 
 
