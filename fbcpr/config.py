@@ -98,6 +98,11 @@ class AgentConfig:
     actor_reg_coef: float = _f(0.01, NON_NEGATIVE)
     action_penalty: float = _f(0.0, NON_NEGATIVE)  # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
     grad_penalty: float = _f(10.0, NON_NEGATIVE)
+    # not in the paper, for runs continued with --init-from (`fbcpr.fb_cpr.anchor`): hold B and the observation
+    # normaliser at the loaded model's, so every prompt keeps its meaning; and pull the actor's mean on
+    # demonstration states, under their own ER_FB latents, toward the loaded actor's (scaled like action_penalty)
+    freeze_backward: bool = _f(False)
+    anchor_actor: float = _f(0.0, NON_NEGATIVE)
     fb_pessimism: float = _f(0.0, NON_NEGATIVE)
     fz_pessimism: float = _f(0.5, NON_NEGATIVE)
     critic_pessimism: float = _f(0.5, NON_NEGATIVE)

@@ -46,8 +46,9 @@ class OnlineAgent(Protocol):
         """One learning step from a replay batch and raw demonstration windows (w, L, obs_dim); returns metrics."""
         ...
 
-    def sync_targets(self) -> None:
-        """Set every target network to its online network (after loading weights into `model`)."""
+    def warm_started(self) -> None:
+        """Called once after a warm start loaded another run's weights into `model`: every target network := its
+        online network, and whatever else the agent derives from the loaded model."""
         ...
 
     def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:

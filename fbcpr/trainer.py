@@ -128,6 +128,10 @@ class Trainer:
         if r.enabled:
             torch.manual_seed(seed)
             self.agent.generator.manual_seed(seed)
+        held = [k for k in ("freeze_backward", "anchor_actor") if getattr(cfg.agent, k, False)]
+        if held and init_from is None and not resume:
+            raise ConfigError(f"agent.{held[0]}: holds a run near the model it continues, so it needs --init-from "
+                              "(a fresh run has no model to hold)")
         self.warm_started = init_from is not None and not resume
         if self.warm_started:
             self._warm_start(init_from)
@@ -546,7 +550,7 @@ class Trainer:
             raise ConfigError(f"env.action_mapping: {self.cfg.env.action_mapping!r} differs from {theirs!r} of the "
                               f"--init-from checkpoint {ckpt.path}")
         load_state_strict(self.agent.model, ckpt.model.state_dict(), f"{ckpt.path / 'model.safetensors'} (--init-from)")
-        self.agent.sync_targets()
+        self.agent.warm_started()
 
     def _resume(self) -> None:
         """Continue from the latest checkpoint. Every rank loads the learner state (model, targets, optimisers,

@@ -8,6 +8,8 @@ target nets feed both TD targets; expert and online states go through the discri
 The actor loss evaluates F and Q with detached weights, so one backward leaves them untouched by it.
 With `agent.regulariser: near` a z-conditioned energy (`fbcpr.near.conditional`) takes the discriminator's place:
 its DSM loss joins the one backward and its anchored energy is the critic's reward.
+A continued run can hold B and the normaliser fixed (`agent.freeze_backward`) and anchor the actor on demonstration
+states (`agent.anchor_actor`, `fbcpr.fb_cpr.anchor`).
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from torch import Tensor, nn
 
 from fbcpr.config import AgentConfig, Config, ModelConfig
 from fbcpr.fb_cpr import losses
+from fbcpr.fb_cpr.anchor import ActorAnchor
 from fbcpr.fb_cpr.imitation import discriminator_terms, encode_windows
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.near.conditional import ConditionalEnergy
@@ -48,6 +51,11 @@ class FBCPRAgent:
         self.targets = nn.ModuleDict({k: copy.deepcopy(getattr(self.model, k)) for k in TARGETS})
         self.targets.requires_grad_(False)
         trained = {k: (getattr(self.model, k), getattr(agent_cfg, lr)) for k, lr in OPTIMISED.items()}
+        if agent_cfg.freeze_backward:
+            del trained["backward_map"]
+            self.model.backward_map.requires_grad_(False)
+        # the actor of the model a continued run starts from (`warm_started` takes it; a resume loads it)
+        self.anchor = ActorAnchor(self.model) if agent_cfg.anchor_actor > 0 else None
         self.energy: ConditionalEnergy | None = None  # the NEAR regulariser, which replaces the discriminator's training
         if agent_cfg.regulariser == "near":
             self.energy = ConditionalEnergy(model_cfg.obs_dim, model_cfg.z_dim, agent_cfg.near).to(self.device)
@@ -136,7 +144,8 @@ class FBCPRAgent:
         terminated = batch["terminated"].to(dev, torch.float32).reshape(-1)
         expert = expert_windows.to(dev, torch.float32)
         expert_flat = expert.reshape(-1, expert.shape[-1])
-        self.model.obs_normalizer.update(torch.cat([obs, expert_flat]))
+        if not self.cfg.freeze_backward:  # B reads normalised states: a frozen B needs frozen statistics
+            self.model.obs_normalizer.update(torch.cat([obs, expert_flat]))
         if self.energy is not None:
             self.energy.step_normalizer.update(expert[:, 1:] - expert[:, :-1])
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
@@ -214,20 +223,30 @@ class FBCPRAgent:
         detached = lambda pre: tuple(t.detach() for t in pre)  # noqa: E731
         Fz_pi = (model.forward_map(obs_n, a_pi, z, detach_params=True, pre=detached(pre_F)) * z).sum(-1)
         Q_pi = model.critic(obs_n, a_pi, z, detach_params=True, pre=detached(pre_Q))[..., 0]
-        actor = losses.actor_loss(Fz_pi, Q_pi, cfg.actor_reg_coef, cfg.actor_pessimism, a_pi, cfg.action_penalty)
+        anchor_metrics, gap = {}, None
+        if self.anchor is not None:  # the actor's mean on demonstration states under their own ER_FB latents
+            gap = self.anchor.gap(model, expert.reshape(w * L, -1), expert_n.reshape(w * L, -1),
+                                  z_exp.detach().repeat_interleave(L, 0))
+            anchor_metrics = {"anchor_gap": gap}
+        actor = losses.actor_loss(Fz_pi, Q_pi, cfg.actor_reg_coef, cfg.actor_pessimism, a_pi, cfg.action_penalty,
+                                  gap, cfg.anchor_actor)
 
         total = (regulariser + fb + cfg.fz_coef * fz + cfg.ortho_coef * ortho + critic + actor)
         return {
             "_total": total, "fb_loss": fb, "fz_loss": fz, "ortho_loss": ortho, "critic_loss": critic,
             "actor_loss": actor, "reward": reward.mean(),
             "q": Q_sa.mean(), "fz": Fz_pi.mean(), "M_diag": torch.diagonal(M, dim1=-2, dim2=-1).mean(), **reg_metrics,
+            **anchor_metrics,
         }
 
     @torch.no_grad()
-    def sync_targets(self) -> None:
-        """Every target network := its online network (a warm start loads weights into `model` first)."""
+    def warm_started(self) -> None:
+        """After a warm start loaded weights into `model`: every target network := its online network, and the
+        actor anchor (if any) := the loaded actor."""
         for k in TARGETS:
             self.targets[k].load_state_dict(getattr(self.model, k).state_dict())
+        if self.anchor is not None:
+            self.anchor.hold(self.model)
 
     @torch.no_grad()
     def soft_update(self) -> None:
@@ -247,6 +266,8 @@ class FBCPRAgent:
         if self.energy is not None:
             tensors.update({f"near.{k}": v for k, v in self.energy.state_dict().items()})
             meta["near"] = self.energy.meta()
+        if self.anchor is not None:
+            tensors.update({f"anchor.{k}": v for k, v in self.anchor.state_dict().items()})
         return tensors, meta
 
     def load_state(self, tensors: dict[str, Tensor], meta: dict[str, Any]) -> None:
@@ -261,6 +282,10 @@ class FBCPRAgent:
             if "near" not in meta:
                 raise CheckpointError("trainer_state.safetensors: no NEAR regulariser state (agent.regulariser: near)")
             self.energy.load_meta(meta["near"])
+        if self.anchor is not None:
+            anchor = {k[len("anchor."):]: v for k, v in tensors.items() if k.startswith("anchor.")}
+            load_state_strict(self.anchor, anchor, "trainer_state.safetensors (actor anchor, agent.anchor_actor)")
+            self.anchor.to(self.device)
         try:
             for name, opt in self.optimizers.items():
                 load_optimizer_state(opt, f"optim.{name}", meta["optimizers"][name], tensors)

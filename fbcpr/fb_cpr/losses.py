@@ -51,14 +51,17 @@ def implicit_reward(B_next: Tensor, z: Tensor, ridge: float = 1e-6) -> Tensor:
 
 
 def actor_loss(Fz: Tensor, Q: Tensor, alpha: float, coef: float, action: Tensor | None = None,
-               action_coef: float = 0.0) -> Tensor:
+               action_coef: float = 0.0, anchor_gap: Tensor | None = None, anchor_coef: float = 0.0) -> Tensor:
     """Line 32: -mean(Fz_pess + alpha * stopgrad(mean |Fz_pess|) * Q_pess). Fz, Q: (m, n) at policy actions.
 
-    action_coef > 0 adds `action_penalty` on the policy's actions (n, a), scaled by the same mean |Fz_pess|."""
+    action_coef > 0 adds `action_penalty` on the policy's actions (n, a), and anchor_coef > 0 adds
+    anchor_coef * anchor_gap (`fbcpr.fb_cpr.anchor`), both scaled by the same mean |Fz_pess|."""
     fz = pessimistic(Fz, coef)
     q = pessimistic(Q, coef)
     scale = fz.abs().mean().detach()
     loss = -(fz + alpha * scale * q).mean()
-    if action is None or action_coef == 0.0:
-        return loss
-    return loss + action_penalty(action, scale, action_coef)
+    if action is not None and action_coef > 0.0:
+        loss = loss + action_penalty(action, scale, action_coef)
+    if anchor_gap is not None and anchor_coef > 0.0:
+        loss = loss + anchor_coef * scale * anchor_gap
+    return loss
