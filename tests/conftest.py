@@ -46,3 +46,22 @@ def humanoid_states(n: int, seed: int, drop: tuple[float, float] = (-0.8, 0.3)) 
     qpos[:, 2] += rng.uniform(*drop, n)
     qvel = rng.normal(0.0, 1.0, (n, NV))
     return {"next_obs": observe(m, qpos, qvel), "qpos": qpos, "qvel": qvel}
+
+
+def tiny_humanoid_checkpoint(root, name: str, seed: int, preset: str = "tiny", mapping: str = "rest"):
+    """An untrained FB-CPR inference checkpoint for the humanoid at root/name, with 32 reward states and a fitted
+    normaliser: distinct weights per seed, for tests of what works on whole models."""
+    import torch
+
+    from fbcpr.checkpoint import save_checkpoint
+    from fbcpr.config import config_from_dict
+    from fbcpr.fb_cpr.model import FBCPRModel
+
+    torch.manual_seed(seed)
+    cfg = config_from_dict({"model": {"preset": preset, "obs_dim": 358, "action_dim": 69},
+                            "agent": {"seq_length": 4, "batch_size": 8},
+                            "env": {"name": "humanoid", "action_mapping": mapping}})
+    model = FBCPRModel(cfg.model)
+    buf = humanoid_states(32, seed=seed)
+    model.obs_normalizer.update(torch.as_tensor(buf["next_obs"]))
+    return save_checkpoint(root / name, model, cfg, reward_buffer=buf)

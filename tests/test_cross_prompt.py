@@ -10,11 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import humanoid_states
+from conftest import humanoid_states, tiny_humanoid_checkpoint
 from fbcpr import BFM
-from fbcpr.checkpoint import CheckpointError, save_checkpoint
-from fbcpr.config import config_from_dict
-from fbcpr.fb_cpr.model import FBCPRModel
+from fbcpr.checkpoint import CheckpointError
 from humanoid_env.tasks import goal_obs
 
 SCRIPT = Path(__file__).parents[1] / "benchmarks" / "cross_prompt.py"
@@ -24,19 +22,8 @@ spec.loader.exec_module(cross_prompt)
 torch.set_num_threads(1)
 
 
-def _checkpoint(root: Path, name: str, seed: int, mapping: str = "rest") -> Path:
-    torch.manual_seed(seed)
-    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
-                            "agent": {"seq_length": 4, "batch_size": 8},
-                            "env": {"name": "humanoid", "action_mapping": mapping}})
-    model = FBCPRModel(cfg.model)
-    buf = humanoid_states(32, seed=seed)
-    model.obs_normalizer.update(torch.as_tensor(buf["next_obs"]))
-    return save_checkpoint(root / name, model, cfg, reward_buffer=buf)
-
-
 def test_the_crossed_agent_acts_with_one_model_on_the_others_latents(tmp_path):
-    a, b = BFM.load(_checkpoint(tmp_path, "a", 0)), BFM.load(_checkpoint(tmp_path, "b", 1))
+    a, b = BFM.load(tiny_humanoid_checkpoint(tmp_path, "a", 0)), BFM.load(tiny_humanoid_checkpoint(tmp_path, "b", 1))
     crossed = cross_prompt.CrossedAgent(a, b)
     g = goal_obs("t_pose")
     z = crossed.goal_z(g)
@@ -48,7 +35,7 @@ def test_the_crossed_agent_acts_with_one_model_on_the_others_latents(tmp_path):
     assert not np.allclose(crossed.act(obs, zs), b.act(obs, zs))
     np.testing.assert_array_equal(crossed.reward_z("jump-2"), b.reward_z("jump-2"))
     with pytest.raises(CheckpointError, match="action mapping differs"):
-        cross_prompt.CrossedAgent(a, BFM.load(_checkpoint(tmp_path, "mid", 2, mapping="mid")))
+        cross_prompt.CrossedAgent(a, BFM.load(tiny_humanoid_checkpoint(tmp_path, "mid", 2, mapping="mid")))
 
 
 def test_the_script_prints_the_three_rows(tmp_path):
@@ -56,7 +43,7 @@ def test_the_script_prints_the_three_rows(tmp_path):
     from motions.synthetic import stand
 
     save_clip(stand(1.0), tmp_path / "clips" / "stand.npz")
-    a, b = _checkpoint(tmp_path, "a", 0), _checkpoint(tmp_path, "b", 1)
+    a, b = tiny_humanoid_checkpoint(tmp_path, "a", 0), tiny_humanoid_checkpoint(tmp_path, "b", 1)
     out = subprocess.run([sys.executable, str(SCRIPT), str(a), str(b), "--suite", "goal", "--episodes", "1",
                           "--steps", "5", "--motions", str(tmp_path / "clips"), "--threads", "1"],
                          capture_output=True, text=True, timeout=300)

@@ -8,33 +8,20 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from conftest import humanoid_states
+from conftest import humanoid_states, tiny_humanoid_checkpoint
 from fbcpr import BFM
-from fbcpr.checkpoint import CheckpointError, save_checkpoint
+from fbcpr.checkpoint import CheckpointError
 from fbcpr.cli.app import app
-from fbcpr.config import config_from_dict
 from fbcpr.errors import InputError
-from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.interpolation import interpolate
 
 torch.set_num_threads(1)
 
 
-def _checkpoint(root: Path, name: str, seed: int, preset: str = "tiny", mapping: str = "rest") -> Path:
-    torch.manual_seed(seed)
-    cfg = config_from_dict({"model": {"preset": preset, "obs_dim": 358, "action_dim": 69},
-                            "agent": {"seq_length": 4, "batch_size": 8},
-                            "env": {"name": "humanoid", "action_mapping": mapping}})
-    model = FBCPRModel(cfg.model)
-    buf = humanoid_states(32, seed=seed)
-    model.obs_normalizer.update(torch.as_tensor(buf["next_obs"]))
-    return save_checkpoint(root / name, model, cfg, reward_buffer=buf)
-
-
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory) -> tuple[Path, Path]:
     root = tmp_path_factory.mktemp("interp")
-    return _checkpoint(root, "base", seed=0), _checkpoint(root, "tuned", seed=1)
+    return tiny_humanoid_checkpoint(root, "base", seed=0), tiny_humanoid_checkpoint(root, "tuned", seed=1)
 
 
 def _weights(bfm: BFM) -> dict[str, torch.Tensor]:
@@ -75,7 +62,7 @@ def test_alpha_outside_the_unit_interval_is_named(pair, alpha):
 @pytest.mark.parametrize("other, match", [({"preset": "small"}, "model config"),
                                           ({"mapping": "mid"}, "action mapping")])
 def test_models_that_do_not_share_an_architecture_are_refused(pair, tmp_path, other, match):
-    odd = _checkpoint(tmp_path, "odd", seed=2, **other)
+    odd = tiny_humanoid_checkpoint(tmp_path, "odd", seed=2, **other)
     with pytest.raises(CheckpointError, match=match):
         interpolate(BFM.load(pair[0]), BFM.load(odd), 0.5)
 
