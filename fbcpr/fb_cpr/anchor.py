@@ -1,11 +1,11 @@
 """Holding a continued run near the model it started from (`agent.anchor_actor`; not in the paper).
 
 A run warm-started from a model (`--init-from`) learns new skills, such as balance under pushes, and loses prompt
-quality. docs/results.md section 25 measured both halves of that loss: the loaded model's B grafted onto the
-continued actor restores goal success (so `agent.freeze_backward` holds B and the normaliser), while tracking
-worsens with the actor itself. Tracking prompts the actor with ER_FB latents of demonstration windows, so the anchor
-penalises the actor for moving its mean on demonstration states under their own latents, and leaves it free
-elsewhere: on fall and push states, and under reward prompts.
+quality. docs/results.md section 25 split that loss between the two halves of a continued model: the loaded
+model's goal z's brought one continued actor back to the loaded model's goal success (hence `agent.freeze_backward`,
+which holds B and the normaliser), while its tracking worsened with the actor itself. Tracking prompts the actor
+with ER_FB latents of demonstration windows, so the anchor penalises the actor for moving its mean on demonstration
+states under their own latents, and leaves it free elsewhere: on fall and push states, and under reward prompts.
 """
 from __future__ import annotations
 
