@@ -17,8 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from fbcpr.bfm import BFM
-from fbcpr.checkpoint import CheckpointError
+from fbcpr.bfm import BFM, check_compatible
 from fbcpr.evaluation.runner import EPISODE_STEPS, SUITES, evaluate
 
 
@@ -26,11 +25,7 @@ class CrossedAgent:
     """Acts with `actor`'s policy on the latents that `prompter` infers (an `fbcpr.evaluation.agents.Agent`)."""
 
     def __init__(self, actor: BFM, prompter: BFM) -> None:
-        for what, a, b in (("env", actor.env_name, prompter.env_name), ("z_dim", actor.z_dim, prompter.z_dim),
-                           ("action mapping", actor.action_mapping, prompter.action_mapping)):
-            if a != b:
-                raise CheckpointError(f"cannot cross {actor.source} with {prompter.source}: their {what} differs "
-                                      f"({a} against {b})")
+        check_compatible(actor, prompter, f"cross {actor.source} with {prompter.source}", same_networks=False)
         self.actor, self.prompter = actor, prompter
         self.action_mapping = actor.action_mapping
         self.name = f"{actor.source} acting on {prompter.source}'s prompts"

@@ -290,6 +290,16 @@ class BFM:
             )
 
 
+def check_compatible(a: BFM, b: BFM, action: str, same_networks: bool) -> None:
+    """Raise CheckpointError unless two models can be combined by `action` (e.g. "interpolate X and Y"): the same
+    env, action mapping and z size, and with `same_networks` the same model config, so their weights match."""
+    pairs = [("env", a.env_name, b.env_name), ("action mapping", a.action_mapping, b.action_mapping),
+             ("model config", a.model.cfg, b.model.cfg) if same_networks else ("z_dim", a.z_dim, b.z_dim)]
+    for what, x, y in pairs:
+        if x != y:
+            raise CheckpointError(f"cannot {action}: their {what} differs ({x} against {y})")
+
+
 def check_reward_buffer(buf: dict[str, np.ndarray], obs_dim: int, env_name: str) -> None:
     """next_obs (N, obs_dim) with N >= 1, qpos and qvel (N, ·), all finite, each row one state's; CheckpointError
     naming what is wrong."""

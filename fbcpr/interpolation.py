@@ -13,7 +13,7 @@ import math
 
 import torch
 
-from fbcpr.bfm import BFM
+from fbcpr.bfm import BFM, check_compatible
 from fbcpr.checkpoint import CheckpointError
 from fbcpr.errors import InputError
 
@@ -26,12 +26,7 @@ def interpolate(base: BFM, tuned: BFM, alpha: float) -> BFM:
     env or action mapping (their weights would not mean the same thing)."""
     if not (isinstance(alpha, (int, float)) and math.isfinite(alpha) and 0.0 <= alpha <= 1.0):
         raise InputError(f"alpha: expected a number in [0, 1], got {alpha!r}")
-    for what, a, b in (("env", base.env_name, tuned.env_name),
-                       ("action mapping", base.action_mapping, tuned.action_mapping),
-                       ("model config", base.model.cfg, tuned.model.cfg)):
-        if a != b:
-            raise CheckpointError(f"cannot interpolate {base.source} and {tuned.source}: their {what} differs "
-                                  f"({a} against {b})")
+    check_compatible(base, tuned, f"interpolate {base.source} and {tuned.source}", same_networks=True)
     sa, sb = base.model.state_dict(), tuned.model.state_dict()
     if sa.keys() != sb.keys() or any(sa[k].shape != sb[k].shape for k in sa):
         raise CheckpointError(f"cannot interpolate {base.source} and {tuned.source}: their tensors differ")
