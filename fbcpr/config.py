@@ -103,6 +103,9 @@ class AgentConfig:
     # demonstration states, under their own ER_FB latents, toward the loaded actor's (scaled like action_penalty)
     freeze_backward: bool = _f(False)
     anchor_actor: float = _f(0.0, NON_NEGATIVE)
+    # reward tasks whose prompts the anchor holds as well: the batch's states under each task's z, inferred once
+    # through the frozen B from the loaded model's reward-inference sample (needs freeze_backward and anchor_actor)
+    anchor_rewards: list[str] = _f([])
     fb_pessimism: float = _f(0.0, NON_NEGATIVE)
     fz_pessimism: float = _f(0.5, NON_NEGATIVE)
     critic_pessimism: float = _f(0.5, NON_NEGATIVE)
@@ -122,6 +125,11 @@ class AgentConfig:
         total = self.z_expert + self.z_online + self.z_uniform
         if not math.isclose(total, 1.0, abs_tol=1e-6):
             raise ConfigError(f"{prefix}.z_expert + z_online + z_uniform: must sum to 1, got {total:g}")
+        if self.anchor_rewards and not (self.freeze_backward and self.anchor_actor > 0):
+            raise ConfigError(f"{prefix}.anchor_rewards: holds reward prompts inferred through a frozen B; needs "
+                              f"{prefix}.freeze_backward: true and {prefix}.anchor_actor > 0")
+        if len(set(self.anchor_rewards)) != len(self.anchor_rewards):
+            raise ConfigError(f"{prefix}.anchor_rewards: a task is given twice in {self.anchor_rewards}")
 
 
 @dataclass
@@ -195,6 +203,9 @@ class TrainConfig:
     log_every: int = _f(10_000, POSITIVE)
     reward_buffer_size: int = _f(100_000, _range(0, 10**7))
     save_buffer: bool = _f(False)
+    # a run continued with --init-from: every checkpoint carries the loaded model's reward-inference sample as it
+    # is, so that with a frozen B (agent.freeze_backward) reward prompts infer the loaded model's z's
+    keep_reward_sample: bool = _f(False)
     torch_threads: int = _f(0, _range(0, 1024))
     # MuJoCo threads of the training envs; 0: all cores, split between the ranks of a torchrun on one machine.
     # Set it when other runs share the machine (several seeds on one leased GPU: benchmarks/gpu_lease)

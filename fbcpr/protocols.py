@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol, runtime_checkable
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -46,9 +47,10 @@ class OnlineAgent(Protocol):
         """One learning step from a replay batch and raw demonstration windows (w, L, obs_dim); returns metrics."""
         ...
 
-    def warm_started(self) -> None:
+    def warm_started(self, reward_sample: dict[str, np.ndarray] | None = None) -> None:
         """Called once after a warm start loaded another run's weights into `model`: every target network := its
-        online network, and whatever else the agent derives from the loaded model."""
+        online network, and whatever else the agent derives from the loaded model (and from its reward-inference
+        sample, None where the checkpoint has none)."""
         ...
 
     def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:

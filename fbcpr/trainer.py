@@ -128,10 +128,13 @@ class Trainer:
         if r.enabled:
             torch.manual_seed(seed)
             self.agent.generator.manual_seed(seed)
-        held = [k for k in ("freeze_backward", "anchor_actor") if getattr(cfg.agent, k, False)]
+        held = [f"agent.{k}" for k in ("freeze_backward", "anchor_actor") if getattr(cfg.agent, k, False)]
+        held += ["train.keep_reward_sample"] if tc.keep_reward_sample else []
         if held and init_from is None and not resume:
-            raise ConfigError(f"agent.{held[0]}: holds a run near the model it continues, so it needs --init-from "
+            raise ConfigError(f"{held[0]}: holds a run near the model it continues, so it needs --init-from "
                               "(a fresh run has no model to hold)")
+        # the loaded model's reward-inference sample, which every checkpoint carries as it is (train.keep_reward_sample)
+        self._kept_sample: dict[str, np.ndarray] | None = None
         self.warm_started = init_from is not None and not resume
         if self.warm_started:
             self._warm_start(init_from)
@@ -505,6 +508,8 @@ class Trainer:
         never leaves reward prompts with less data than the run had."""
         n_max, rng = self.cfg.train.reward_buffer_size, np.random.default_rng(self.env_steps)
         new_n = len(self.buffer)
+        if self._kept_sample is not None:
+            return self._kept_sample, len(self._kept_sample["next_obs"])
         if self._carried is None:
             fresh = self.buffer.reward_inference_sample(n_max, rng) if new_n and n_max else None
             return fresh, new_n
@@ -550,7 +555,13 @@ class Trainer:
             raise ConfigError(f"env.action_mapping: {self.cfg.env.action_mapping!r} differs from {theirs!r} of the "
                               f"--init-from checkpoint {ckpt.path}")
         load_state_strict(self.agent.model, ckpt.model.state_dict(), f"{ckpt.path / 'model.safetensors'} (--init-from)")
-        self.agent.warm_started()
+        sample = ckpt.reward_buffer()
+        if self.cfg.train.keep_reward_sample:
+            if sample is None:
+                raise ConfigError(f"train.keep_reward_sample: the --init-from checkpoint {ckpt.path} has no "
+                                  "reward-inference sample to keep")
+            self._kept_sample = sample
+        self.agent.warm_started(sample)
 
     def _resume(self) -> None:
         """Continue from the latest checkpoint. Every rank loads the learner state (model, targets, optimisers,
@@ -564,6 +575,10 @@ class Trainer:
             raise ConfigError(f"train.num_envs: {self.cfg.train.num_envs}, but {ckpt.path} was saved with "
                               f"{saved_envs} envs; resume with num_envs: {saved_envs} (or start a new run)")
         self.agent.load_state(tensors, meta)
+        if self.cfg.train.keep_reward_sample:
+            self._kept_sample = ckpt.reward_buffer()
+            if self._kept_sample is None:
+                raise CheckpointError(f"{ckpt.path}: no reward-inference sample to keep (train.keep_reward_sample)")
         try:
             self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
             tc = self.cfg.train

@@ -1,8 +1,10 @@
-"""Continuing a model while holding what prompts it: a frozen B and normaliser (`agent.freeze_backward`) and the
-actor anchored on demonstration pairs (`agent.anchor_actor`), kept across a resume and refused without --init-from."""
+"""Continuing a model while holding what prompts it: a frozen B and normaliser (`agent.freeze_backward`), the
+actor anchored on demonstration pairs (`agent.anchor_actor`) and on held reward prompts (`agent.anchor_rewards`),
+the loaded reward sample kept (`train.keep_reward_sample`); kept across a resume and refused without --init-from."""
 import copy
 import shutil
 
+import numpy as np
 import pytest
 import torch
 
@@ -16,10 +18,15 @@ from fbcpr.trainer import Trainer
 torch.set_num_threads(1)
 
 
+def far_from(x: float):
+    """A made-up task reward on (next_obs, qpos, qvel): higher the closer the first coordinate is to x."""
+    return lambda next_obs, qpos, qvel: np.exp(-np.abs(next_obs[:, 0] - x))
+
+
 def make_agent(**agent):
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3},
                             "agent": {"batch_size": 32, **agent}})
-    return FBCPRAgent(cfg.model, cfg.agent, seed=0)
+    return FBCPRAgent(cfg.model, cfg.agent, seed=0, task_reward=lambda name: far_from(float(name)))
 
 
 def batches(agent, k):
@@ -70,8 +77,8 @@ def test_actor_anchor_holds_the_mean_on_demonstration_pairs_and_nothing_else():
     assert 0 < gaps[30.0] < 0.3 * gaps[0.0], gaps
 
 
-def toy_cfg(**agent):
-    return config_from_dict({
+def toy_cfg(train=None, **agent):
+    cfg = {
         "model": {"preset": "tiny"},
         "agent": {"batch_size": 32, **agent},
         "env": {"name": "toy", "max_episode_steps": 30},
@@ -79,7 +86,9 @@ def toy_cfg(**agent):
                   "updates_per_rollout": 2, "buffer_capacity": 1000, "priority_every": 0, "eval_every": 0,
                   "checkpoint_every": 0, "log_every": 40, "reward_buffer_size": 0, "save_buffer": True,
                   "torch_threads": 1},
-    })
+    }
+    cfg["train"].update(train or {})
+    return config_from_dict(cfg)
 
 
 def test_a_held_run_continues_from_its_model_keeps_the_anchor_on_resume_and_needs_init_from(tmp_path):
@@ -105,3 +114,111 @@ def test_a_held_run_continues_from_its_model_keeps_the_anchor_on_resume_and_need
     assert all(torch.equal(v, again.agent.anchor.state_dict()[k]) for k, v in anchor.items())
     with pytest.raises(CheckpointError, match="actor anchor"):   # a run saved without an anchor cannot give one
         Trainer(toy_cfg(anchor_actor=1.0), tmp_path / "base", resume=True, progress=False)
+
+
+def test_reward_anchor_holds_the_actor_under_held_reward_prompts_on_the_batch_states():
+    data = None
+    gaps = {}
+    g = torch.Generator().manual_seed(5)
+    sample = {"next_obs": (torch.randn(200, 6, generator=g) * 2 + 1).numpy(), "qpos": np.zeros((200, 1)),
+              "qvel": np.zeros((200, 1))}
+    for held in ([], ["-1", "2"]):
+        agent = make_agent(anchor_actor=30.0, freeze_backward=True, anchor_rewards=held, lr_actor=3e-3)
+        data = data or batches(agent, 41)
+        agent.update(*data[0])                        # statistics from a first batch, as a loaded model has them
+        agent.warm_started(sample)
+        start = ActorAnchor(agent.model)
+        m = agent.model
+        prompts = torch.stack([torch.as_tensor(m.project_z(torch.as_tensor(
+            np.exp(10 * (r - r.max())) * r, dtype=torch.float32) @ m.backward(torch.as_tensor(sample["next_obs"]))))
+            for r in (far_from(-1.0)(sample["next_obs"], None, None), far_from(2.0)(sample["next_obs"], None, None))])
+        if held:  # the held z's are the weighted-regression prompts of the loaded B over the loaded sample
+            assert torch.allclose(agent.anchor.prompts, prompts, atol=1e-4)
+        for batch, windows in data[1:]:
+            metrics = agent.update(batch, windows)
+        assert ("anchor_gap_rewards" in metrics) is bool(held)
+        obs = torch.cat([b["obs"] for b, _ in data[:4]])
+        with torch.no_grad():
+            z = prompts.repeat(len(obs) // 2, 1)
+            gaps[bool(held)] = float(start.gap(m, obs, m.normalize(obs), z))
+    assert 0 < gaps[True] < 0.3 * gaps[False], gaps
+
+
+def test_held_reward_prompts_are_the_reward_prompts_of_the_loaded_checkpoint(tmp_path):
+    from fbcpr import BFM
+    from fbcpr.checkpoint import load_checkpoint
+    from humanoid_env.tasks import get_reward
+    from tests.conftest import tiny_humanoid_checkpoint
+
+    path = tiny_humanoid_checkpoint(tmp_path, "loaded", seed=3)
+    ckpt = load_checkpoint(path)
+    names = ["move-ego-0-0", "raisearms-l-l"]
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
+                            "agent": {"seq_length": 4, "batch_size": 8, "freeze_backward": True, "anchor_actor": 1.0,
+                                      "anchor_rewards": names}})
+    agent = FBCPRAgent(cfg.model, cfg.agent, task_reward=lambda n: (lambda o, q, v, f=get_reward(n): f(o, None, q, v)))
+    agent.model.load_state_dict(ckpt.model.state_dict())
+    agent.warm_started(ckpt.reward_buffer())
+    bfm = BFM.load(path)
+    for name, held in zip(names, agent.anchor.prompts):
+        np.testing.assert_allclose(held.numpy(), bfm.prompt.reward(name), atol=1e-4)
+    with pytest.raises(ConfigError, match="no reward-inference sample"):
+        agent.warm_started(None)
+
+
+def test_held_reward_options_refuse_what_they_cannot_hold(tmp_path):
+    for agent, match in (({"anchor_rewards": ["ring"], "anchor_actor": 1.0}, "anchor_rewards: .*freeze_backward"),
+                         ({"anchor_rewards": ["ring"], "freeze_backward": True}, "anchor_rewards: .*anchor_actor"),
+                         ({"anchor_rewards": ["ring", "ring"], "freeze_backward": True, "anchor_actor": 1.0},
+                          "given twice")):
+        with pytest.raises(ConfigError, match=match):
+            toy_cfg(**agent)
+    held = {"freeze_backward": True, "anchor_actor": 1.0}
+    with pytest.raises(ConfigError, match="unknown toy task 'nowhere'"):
+        Trainer(toy_cfg(anchor_rewards=["nowhere"], **held), tmp_path / "x", progress=False)
+    with pytest.raises(ConfigError, match="train.keep_reward_sample: .*needs --init-from"):
+        Trainer(toy_cfg(train={"keep_reward_sample": True}), tmp_path / "fresh", progress=False)
+    Trainer(toy_cfg(), tmp_path / "bare", progress=False).save()      # reward_buffer_size 0: no sample saved
+    with pytest.raises(ConfigError, match="keep_reward_sample: the --init-from checkpoint .* no reward"):
+        Trainer(toy_cfg(train={"keep_reward_sample": True}), tmp_path / "k", progress=False, init_from=tmp_path / "bare")
+    with pytest.raises(ConfigError, match="anchor_rewards: the --init-from checkpoint has no reward"):
+        Trainer(toy_cfg(anchor_rewards=["ring"], **held), tmp_path / "r", progress=False, init_from=tmp_path / "bare")
+
+
+def test_a_run_holding_reward_prompts_keeps_the_loaded_sample_and_prompts_across_a_resume(tmp_path):
+    from fbcpr.checkpoint import latest_checkpoint, load_checkpoint
+
+    sampled = {"reward_buffer_size": 60}
+    base = Trainer(toy_cfg(train=sampled), tmp_path / "base", progress=False)
+    base.run(max_env_steps=80)
+    base.save()
+    loaded = load_checkpoint(latest_checkpoint(tmp_path / "base" / "checkpoints")).reward_buffer()
+    held = {"freeze_backward": True, "anchor_actor": 1.0, "anchor_rewards": ["ring", "reach-top-right"],
+            "train": {**sampled, "keep_reward_sample": True}}
+    run = Trainer(toy_cfg(**held), tmp_path / "held", progress=False, init_from=tmp_path / "base")
+    prompts = run.agent.anchor.prompts.clone()
+    assert prompts.shape == (2, run.agent.z_dim) and not torch.allclose(prompts[0], prompts[1])
+    run.run(max_env_steps=120)
+    run.save()
+
+    def saved(root):
+        return load_checkpoint(latest_checkpoint(root / "checkpoints")).reward_buffer()
+
+    for key in loaded:       # the held run's checkpoints carry the loaded sample as it is, not its own transitions
+        np.testing.assert_array_equal(saved(tmp_path / "held")[key], loaded[key])
+    shutil.copytree(tmp_path / "held", tmp_path / "again")
+    again = Trainer(toy_cfg(**held), tmp_path / "again", resume=True, progress=False)
+    assert torch.equal(again.agent.anchor.prompts, prompts)
+    again.run(max_env_steps=80)
+    again.save()
+    for key in loaded:
+        np.testing.assert_array_equal(saved(tmp_path / "again")[key], loaded[key])
+    unheld = {k: v for k, v in held.items() if k != "anchor_rewards"}
+    shutil.copytree(tmp_path / "base", tmp_path / "base2")
+    with pytest.raises(CheckpointError, match="actor anchor"):   # saved without held prompts: none to resume with
+        Trainer(toy_cfg(**held), tmp_path / "base2", resume=True, progress=False)
+    free = Trainer(toy_cfg(**{**unheld, "train": sampled}), tmp_path / "free", progress=False,
+                   init_from=tmp_path / "base")
+    free.run(max_env_steps=120)
+    free.save()
+    assert not np.array_equal(saved(tmp_path / "free")["next_obs"], loaded["next_obs"])

@@ -9,19 +9,22 @@ The actor loss evaluates F and Q with detached weights, so one backward leaves t
 With `agent.regulariser: near` a z-conditioned energy (`fbcpr.near.conditional`) takes the discriminator's place:
 its DSM loss joins the one backward and its anchored energy is the critic's reward.
 A continued run can hold B and the normaliser fixed (`agent.freeze_backward`) and anchor the actor on demonstration
-states (`agent.anchor_actor`, `fbcpr.fb_cpr.anchor`).
+states (`agent.anchor_actor`, `fbcpr.fb_cpr.anchor`), and on the batch's states under named reward prompts
+(`agent.anchor_rewards`).
 """
 from __future__ import annotations
 
 import copy
-from typing import Any
+from typing import Any, Callable
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
-from fbcpr.config import AgentConfig, Config, ModelConfig
+from fbcpr.config import AgentConfig, Config, ConfigError, ModelConfig
+from fbcpr.envs import TaskReward
 from fbcpr.fb_cpr import losses
-from fbcpr.fb_cpr.anchor import ActorAnchor
+from fbcpr.fb_cpr.anchor import ActorAnchor, reward_prompts
 from fbcpr.fb_cpr.imitation import discriminator_terms, encode_windows
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.near.conditional import ConditionalEnergy
@@ -42,7 +45,8 @@ class FBCPRAgent:
     fields = ("obs", "action", "next_obs", "z", "terminated")
 
     def __init__(self, model_cfg: ModelConfig, agent_cfg: AgentConfig, device: str | torch.device = "cpu",
-                 seed: int = 0) -> None:
+                 seed: int = 0, task_reward: Callable[[str], TaskReward] | None = None) -> None:
+        """task_reward: the env's reward of a task name (`EnvBundle.task_reward`), for `agent.anchor_rewards`."""
         self.cfg = agent_cfg
         self.device = torch.device(device)
         self.bf16 = resolve_bf16(agent_cfg.bf16, self.device)
@@ -54,8 +58,13 @@ class FBCPRAgent:
         if agent_cfg.freeze_backward:
             del trained["backward_map"]
             self.model.backward_map.requires_grad_(False)
-        # the actor of the model a continued run starts from (`warm_started` takes it; a resume loads it)
-        self.anchor = ActorAnchor(self.model) if agent_cfg.anchor_actor > 0 else None
+        # the actor of the model a continued run starts from, and its reward prompts (`warm_started` takes them; a
+        # resume loads them)
+        if agent_cfg.anchor_rewards and task_reward is None:
+            raise ConfigError("agent.anchor_rewards: the agent needs the env's task rewards (task_reward) to infer "
+                              "the held reward prompts")
+        self.held_rewards = {k: task_reward(k) for k in agent_cfg.anchor_rewards} if task_reward else {}
+        self.anchor = (ActorAnchor(self.model, len(self.held_rewards)) if agent_cfg.anchor_actor > 0 else None)
         self.energy: ConditionalEnergy | None = None  # the NEAR regulariser, which replaces the discriminator's training
         if agent_cfg.regulariser == "near":
             self.energy = ConditionalEnergy(model_cfg.obs_dim, model_cfg.z_dim, agent_cfg.near).to(self.device)
@@ -76,7 +85,7 @@ class FBCPRAgent:
 
     @classmethod
     def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> "FBCPRAgent":
-        return cls(cfg.model, cfg.agent, device, seed)
+        return cls(cfg.model, cfg.agent, device, seed, task_reward=bundle.task_reward)
 
     @property
     def z_dim(self) -> int:
@@ -228,6 +237,12 @@ class FBCPRAgent:
             gap = self.anchor.gap(model, expert.reshape(w * L, -1), expert_n.reshape(w * L, -1),
                                   z_exp.detach().repeat_interleave(L, 0))
             anchor_metrics = {"anchor_gap": gap}
+            if self.anchor.prompts is not None:  # and on the batch's states, each under a held reward prompt
+                task = torch.randint(self.anchor.prompts.shape[0], (obs.shape[0],), generator=self.generator,
+                                     device=obs.device)
+                reward_gap = self.anchor.gap(model, obs, obs_n, self.anchor.prompts[task])
+                anchor_metrics["anchor_gap_rewards"] = reward_gap
+                gap = gap + reward_gap
         actor = losses.actor_loss(Fz_pi, Q_pi, cfg.actor_reg_coef, cfg.actor_pessimism, a_pi, cfg.action_penalty,
                                   gap, cfg.anchor_actor)
 
@@ -240,13 +255,19 @@ class FBCPRAgent:
         }
 
     @torch.no_grad()
-    def warm_started(self) -> None:
-        """After a warm start loaded weights into `model`: every target network := its online network, and the
-        actor anchor (if any) := the loaded actor."""
+    def warm_started(self, reward_sample: dict[str, np.ndarray] | None = None) -> None:
+        """After a warm start loaded weights into `model`: every target network := its online network, the actor
+        anchor (if any) := the loaded actor, and its reward prompts := those the loaded B infers from the loaded
+        model's reward-inference sample."""
         for k in TARGETS:
             self.targets[k].load_state_dict(getattr(self.model, k).state_dict())
         if self.anchor is not None:
             self.anchor.hold(self.model)
+        if self.held_rewards:
+            if reward_sample is None:
+                raise ConfigError("agent.anchor_rewards: the --init-from checkpoint has no reward-inference sample, "
+                                  "so there are no reward prompts to hold")
+            self.anchor.prompts.copy_(reward_prompts(self.model, reward_sample, self.held_rewards))
 
     @torch.no_grad()
     def soft_update(self) -> None:

@@ -6,24 +6,36 @@ model's goal z's brought one continued actor back to the loaded model's goal suc
 which holds B and the normaliser), while its tracking worsened with the actor itself. Tracking prompts the actor
 with ER_FB latents of demonstration windows, so the anchor penalises the actor for moving its mean on demonstration
 states under their own latents, and leaves it free elsewhere: on fall and push states, and under reward prompts.
+Section 25 then found that the reward tasks were what a held run still lost, so `agent.anchor_rewards` names reward
+tasks whose prompts the anchor holds too: the batch's states under each task's z, inferred once, through the frozen
+B, from the loaded model's reward-inference sample, as a reward prompt of the loaded model infers it.
 """
 from __future__ import annotations
 
 import copy
 
 import torch
+import numpy as np
 from torch import Tensor, nn
 
+from fbcpr.config import ConfigError
+from fbcpr.envs import TaskReward
 from fbcpr.fb_cpr.model import FBCPRModel
+from fbcpr.latents import reward_weights
+from fbcpr.networks import project_sphere
 
 
 class ActorAnchor(nn.Module):
-    """A frozen copy of an actor and of the normaliser it reads, taken from the model a run starts from."""
+    """A frozen copy of an actor and of the normaliser it reads, taken from the model a run starts from, and the z's
+    of the reward prompts it holds (`prompts`, (tasks, d); absent when it holds none)."""
 
-    def __init__(self, model: FBCPRModel) -> None:
+    prompts: Tensor | None
+
+    def __init__(self, model: FBCPRModel, reward_tasks: int = 0) -> None:
         super().__init__()
         self.actor = copy.deepcopy(model.actor)
         self.obs_normalizer = copy.deepcopy(model.obs_normalizer)
+        self.register_buffer("prompts", torch.zeros(reward_tasks, model.z_dim) if reward_tasks else None)
         self.requires_grad_(False)
 
     @torch.no_grad()
@@ -40,3 +52,21 @@ class ActorAnchor(nn.Module):
         with torch.no_grad():
             held = torch.tanh(self.actor(self.obs_normalizer(states), None, z)[0])
         return (model.actor_mean(states_n, z) - held).square().mean()
+
+
+@torch.no_grad()
+def reward_prompts(model: FBCPRModel, sample: dict[str, np.ndarray], rewards: dict[str, TaskReward]) -> Tensor:
+    """(tasks, d): the weighted-regression z of each reward over a reward-inference sample (next_obs, qpos, qvel),
+    on the sqrt(d) sphere, as `fbcpr.prompt.Prompt.reward` infers it from a checkpoint with this sample."""
+    b = model.backward_map(model.normalize(torch.as_tensor(sample["next_obs"], dtype=torch.float32,
+                                                           device=model.device))).double()
+    zs = []
+    for name, fn in rewards.items():
+        r = torch.as_tensor(np.asarray(fn(sample["next_obs"], sample["qpos"], sample["qvel"]), dtype=np.float64),
+                            device=b.device)
+        w = reward_weights(r)
+        if not torch.all(torch.isfinite(w)) or not torch.any(w != 0):
+            raise ConfigError(f"agent.anchor_rewards: {name!r} is zero or non-finite on all {r.shape[0]} states of the "
+                              "loaded reward-inference sample, so it has no z to hold")
+        zs.append(w @ b)
+    return project_sphere(torch.stack(zs)).float()

@@ -123,7 +123,7 @@ class TD3Agent:
         return {**metrics, **dict(zip(("critic_loss", "actor_loss", "reward", "q"), values.tolist()))}
 
     @torch.no_grad()
-    def warm_started(self) -> None:
+    def warm_started(self, reward_sample: dict[str, np.ndarray] | None = None) -> None:
         self.target_critic.load_state_dict(self.model.critic.state_dict())
 
     # ------------------------------------------------------------------------------------- state
