@@ -85,7 +85,8 @@ class FBCPRAgent:
 
     @classmethod
     def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> "FBCPRAgent":
-        return cls(cfg.model, cfg.agent, device, seed, task_reward=bundle.task_reward)
+        return cls(cfg.model, cfg.agent, device, seed,
+                   task_reward=bundle.task_reward if cfg.agent.anchor_rewards else None)
 
     @property
     def z_dim(self) -> int:
