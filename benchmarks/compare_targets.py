@@ -7,8 +7,15 @@ must match. For each model the script prints, seed by seed and as the mean: the 
 both floors, goal success, tracking EMD, the sum of the task returns, and how many tasks' returns are above the
 base's on the same seed.
 
+With `--pushes`, the pushed starts each model held (`benchmarks/upright_time.py --push 0.1 0.3` over seeds 1-8,
+of 128), it also applies the shipping rule fixed in docs/results.md sections 21-22 and names the clauses a
+candidate fails: it replaces the base only if its mean walk and mean task sum are above the base's, its mean
+count of tasks beating both floors is at least the base's less 0.5, its mean goal success at least the base's,
+its mean EMD at most the base's plus 0.1, and it holds at least the base's pushes less 6.
+
     python benchmarks/compare_targets.py --base runs/targets-S2-s0.json runs/targets-S2-s1.json \
-        --candidate A runs/targets-A-s0.json runs/targets-A-s1.json --candidate B runs/targets-B-s0.json ...
+        --candidate A runs/targets-A-s0.json runs/targets-A-s1.json --candidate B runs/targets-B-s0.json ... \
+        --pushes base 95 --pushes A 101 --pushes B 90
 """
 from __future__ import annotations
 
@@ -58,12 +65,35 @@ def compare(base: list[Path], candidate: list[Path]) -> dict[str, list[float]]:
     return out
 
 
+def rule_failures(base: dict[str, list[float]], candidate: dict[str, list[float]], base_pushes: int,
+                  candidate_pushes: int) -> list[str]:
+    """The clauses of the shipping rule (module docstring) that a candidate fails against the base; [] ships."""
+    mean = {m: (sum(base[m]) / len(base[m]), sum(candidate[m]) / len(candidate[m])) for m in base}
+    checks = {"walk": mean["walk"][1] > mean["walk"][0], "sum": mean["sum"][1] > mean["sum"][0],
+              "tasks": mean["tasks > floors"][1] >= mean["tasks > floors"][0] - 0.5,
+              "goal": mean["goal"][1] >= mean["goal"][0], "EMD": mean["EMD"][1] <= mean["EMD"][0] + 0.1,
+              "pushes": candidate_pushes >= base_pushes - 6}
+    return [clause for clause, ok in checks.items() if not ok]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", type=Path, nargs="+", required=True, help="the base model's files, one per seed")
     ap.add_argument("--candidate", nargs="+", action="append", default=[], metavar="NAME FILE",
                     help="a name, then that model's files in the base's seed order (repeatable)")
+    ap.add_argument("--pushes", nargs=2, action="append", default=[], metavar=("NAME", "HELD"),
+                    help="pushed starts a model held, of 128 (NAME base for the base; repeatable): applies the rule")
     args = ap.parse_args()
+    try:
+        pushes = {name: int(held) for name, held in args.pushes}
+    except ValueError:
+        ap.error(f"--pushes: the count of held starts must be an integer, got {args.pushes}")
+    names = {"base", *(c[0] for c in args.candidate)}
+    if set(pushes) - names:
+        ap.error(f"--pushes: no model named {sorted(set(pushes) - names)[0]!r}")
+    if pushes and "base" not in pushes:
+        ap.error("--pushes: give the base's count too (--pushes base N)")
+    base_res = compare(args.base, args.base)
     print("seeds " + ", ".join(str(model_row(p)[0].get("seed")) for p in args.base) + "; per seed (mean)")
     for name, *files in [["base", *map(str, args.base)], *args.candidate]:
         if not files:
@@ -71,6 +101,9 @@ def main() -> None:
         res = compare(args.base, [Path(f) for f in files])
         cells = [f"{m} " + " / ".join(FORMATS[m][0].format(v) for v in vals) + f" ({FORMATS[m][1].format(sum(vals) / len(vals))})"
                  for m, vals in res.items() if not (name == "base" and m == "> base")]
+        if name != "base" and name in pushes:
+            failed = rule_failures(base_res, res, pushes["base"], pushes[name])
+            cells.append(f"pushes {pushes[name]}/128  rule: " + ("passes" if not failed else "fails " + ", ".join(failed)))
         print(f"{name:24s} " + "  ".join(cells))
 
 

@@ -69,3 +69,31 @@ def test_command_line_prints_each_model_with_its_mean(tmp_path):
                          capture_output=True, text=True, check=True).stdout
     assert "walk 10.0 (10.0)" in out.splitlines()[1]
     assert out.splitlines()[2].startswith("A") and "walk 40.0 (40.0)" in out and "> base 1 (1.0)" in out
+
+
+def test_the_shipping_rule_names_each_clause_a_candidate_fails(tmp_path):
+    base = compare_targets.compare(*[[targets_file(tmp_path / "b.json", "base", 0,
+                                                   {"move-ego-0-2": 10.0, "jump-2": 5.0}, beats_floors=40)]] * 2)
+    def cand(name, returns, **measures):
+        return compare_targets.compare([tmp_path / "b.json"],
+                                       [targets_file(tmp_path / f"{name}.json", name, 0, returns, **measures)])
+
+    better = cand("better", {"move-ego-0-2": 11.0, "jump-2": 5.0}, beats_floors=40, goal_success=0.1, tracking_emd=5.1)
+    assert compare_targets.rule_failures(base, better, 95, 89) == []
+    assert compare_targets.rule_failures(base, better, 95, 88) == ["pushes"]
+    worse = cand("worse", {"move-ego-0-2": 10.0, "jump-2": 4.0}, beats_floors=39, goal_success=0.09,
+                 tracking_emd=5.11)
+    assert compare_targets.rule_failures(base, worse, 95, 95) == ["walk", "sum", "tasks", "goal", "EMD"]
+
+
+def test_the_rule_is_printed_for_candidates_with_pushes(tmp_path, capsys, monkeypatch):
+    b = targets_file(tmp_path / "b.json", "base", 0, {"move-ego-0-2": 10.0})
+    c = targets_file(tmp_path / "c.json", "cand", 0, {"move-ego-0-2": 12.0})
+    argv = ["compare_targets.py", "--base", str(b), "--candidate", "C", str(c), "--pushes", "base", "95"]
+    monkeypatch.setattr("sys.argv", argv + ["--pushes", "C", "80"])
+    compare_targets.main()
+    assert "rule: fails pushes" in capsys.readouterr().out
+    monkeypatch.setattr("sys.argv", argv + ["--pushes", "D", "80"])
+    with pytest.raises(SystemExit):
+        compare_targets.main()
+    assert "no model named 'D'" in capsys.readouterr().err
