@@ -64,7 +64,7 @@ class FBCPRAgent:
             raise ConfigError("agent.anchor_rewards: the agent needs the env's task rewards (task_reward) to infer "
                               "the held reward prompts")
         self.held_rewards = {k: task_reward(k) for k in agent_cfg.anchor_rewards} if task_reward else {}
-        self.anchor = (ActorAnchor(self.model, len(self.held_rewards)) if agent_cfg.anchor_actor > 0 else None)
+        self.anchor = ActorAnchor(self.model, len(self.held_rewards)) if agent_cfg.anchor_actor > 0 else None
         self.energy: ConditionalEnergy | None = None  # the NEAR regulariser, which replaces the discriminator's training
         if agent_cfg.regulariser == "near":
             self.energy = ConditionalEnergy(model_cfg.obs_dim, model_cfg.z_dim, agent_cfg.near).to(self.device)

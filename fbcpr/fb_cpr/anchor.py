@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import copy
 
-import torch
 import numpy as np
+import torch
 from torch import Tensor, nn
 
 from fbcpr.config import ConfigError
