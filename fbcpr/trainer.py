@@ -506,10 +506,10 @@ class Trainer:
         After a resume without the replay buffer, the sample carried over from the checkpoint is merged with the
         new transitions in proportion to what each stands for (as a FIFO buffer would hold them), so a resume
         never leaves reward prompts with less data than the run had."""
-        n_max, rng = self.cfg.train.reward_buffer_size, np.random.default_rng(self.env_steps)
-        new_n = len(self.buffer)
         if self._kept_sample is not None:
             return self._kept_sample, len(self._kept_sample["next_obs"])
+        n_max, rng = self.cfg.train.reward_buffer_size, np.random.default_rng(self.env_steps)
+        new_n = len(self.buffer)
         if self._carried is None:
             fresh = self.buffer.reward_inference_sample(n_max, rng) if new_n and n_max else None
             return fresh, new_n
