@@ -148,7 +148,7 @@ def test_held_reward_prompts_are_the_reward_prompts_of_the_loaded_checkpoint(tmp
     from fbcpr import BFM
     from fbcpr.checkpoint import load_checkpoint
     from humanoid_env.tasks import get_reward
-    from tests.conftest import tiny_humanoid_checkpoint
+    from conftest import tiny_humanoid_checkpoint
 
     path = tiny_humanoid_checkpoint(tmp_path, "loaded", seed=3)
     ckpt = load_checkpoint(path)
