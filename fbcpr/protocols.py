@@ -19,7 +19,7 @@ A sequence reward (VIRL) also has an int attribute `history` > 0: the agent then
 """
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -47,10 +47,10 @@ class OnlineAgent(Protocol):
         """One learning step from a replay batch and raw demonstration windows (w, L, obs_dim); returns metrics."""
         ...
 
-    def warm_started(self, reward_sample: dict[str, np.ndarray] | None = None) -> None:
+    def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
         """Called once after a warm start loaded another run's weights into `model`: every target network := its
-        online network, and whatever else the agent derives from the loaded model (and from its reward-inference
-        sample, None where the checkpoint has none)."""
+        online network, and whatever else the agent derives from the loaded model. `reward_sample()` reads the
+        loaded checkpoint's reward-inference sample (None where it has none), for an agent that needs it."""
         ...
 
     def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:

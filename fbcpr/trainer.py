@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import json
+import functools
 import math
 import os
 import random
@@ -555,12 +556,12 @@ class Trainer:
             raise ConfigError(f"env.action_mapping: {self.cfg.env.action_mapping!r} differs from {theirs!r} of the "
                               f"--init-from checkpoint {ckpt.path}")
         load_state_strict(self.agent.model, ckpt.model.state_dict(), f"{ckpt.path / 'model.safetensors'} (--init-from)")
-        sample = ckpt.reward_buffer()
+        sample = functools.cache(ckpt.reward_buffer)  # read at most once, and only where something needs it
         if self.cfg.train.keep_reward_sample:
-            if sample is None:
+            self._kept_sample = sample()
+            if self._kept_sample is None:
                 raise ConfigError(f"train.keep_reward_sample: the --init-from checkpoint {ckpt.path} has no "
                                   "reward-inference sample to keep")
-            self._kept_sample = sample
         self.agent.warm_started(sample)
 
     def _resume(self) -> None:
@@ -618,8 +619,10 @@ class Trainer:
             return
         if self.cfg.train.save_buffer:
             raise CheckpointError(f"{ckpt.path}: train.save_buffer is set but the checkpoint has no replay buffer")
-        self._carried = ckpt.reward_buffer()
-        if self._carried is not None and inconsistent_rows(self._carried, self.cfg.env.name) > 0.5:
+        self._carried = ckpt.reward_buffer() if self._kept_sample is None else None
+        if self._kept_sample is not None:
+            lost = "its reward-inference sample, the loaded model's, is kept as it is (train.keep_reward_sample)"
+        elif self._carried is not None and inconsistent_rows(self._carried, self.cfg.env.name) > 0.5:
             self._carried = None
             lost = ("its reward-inference sample is dropped: its rows mix different transitions (saved by a resume "
                     "before this was checked), so reward prompts will only see the new transitions")

@@ -126,7 +126,7 @@ def test_reward_anchor_holds_the_actor_under_held_reward_prompts_on_the_batch_st
         agent = make_agent(anchor_actor=30.0, freeze_backward=True, anchor_rewards=held, lr_actor=3e-3)
         data = data or batches(agent, 41)
         agent.update(*data[0])                        # statistics from a first batch, as a loaded model has them
-        agent.warm_started(sample)
+        agent.warm_started(lambda: sample)
         start = ActorAnchor(agent.model)
         m = agent.model
         prompts = torch.stack([torch.as_tensor(m.project_z(torch.as_tensor(
@@ -158,12 +158,12 @@ def test_held_reward_prompts_are_the_reward_prompts_of_the_loaded_checkpoint(tmp
                                       "anchor_rewards": names}})
     agent = FBCPRAgent(cfg.model, cfg.agent, task_reward=lambda n: (lambda o, q, v, f=get_reward(n): f(o, None, q, v)))
     agent.model.load_state_dict(ckpt.model.state_dict())
-    agent.warm_started(ckpt.reward_buffer())
+    agent.warm_started(ckpt.reward_buffer)
     bfm = BFM.load(path)
     for name, held in zip(names, agent.anchor.prompts):
         np.testing.assert_allclose(held.numpy(), bfm.prompt.reward(name), atol=1e-4)
     with pytest.raises(ConfigError, match="no reward-inference sample"):
-        agent.warm_started(None)
+        agent.warm_started(lambda: None)
 
 
 def test_held_reward_options_refuse_what_they_cannot_hold(tmp_path):

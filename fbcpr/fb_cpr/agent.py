@@ -256,19 +256,20 @@ class FBCPRAgent:
         }
 
     @torch.no_grad()
-    def warm_started(self, reward_sample: dict[str, np.ndarray] | None = None) -> None:
+    def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
         """After a warm start loaded weights into `model`: every target network := its online network, the actor
         anchor (if any) := the loaded actor, and its reward prompts := those the loaded B infers from the loaded
-        model's reward-inference sample."""
+        model's reward-inference sample (`reward_sample()` reads it)."""
         for k in TARGETS:
             self.targets[k].load_state_dict(getattr(self.model, k).state_dict())
         if self.anchor is not None:
             self.anchor.hold(self.model)
         if self.held_rewards:
-            if reward_sample is None:
+            sample = reward_sample() if reward_sample is not None else None
+            if sample is None:
                 raise ConfigError("agent.anchor_rewards: the --init-from checkpoint has no reward-inference sample, "
                                   "so there are no reward prompts to hold")
-            self.anchor.prompts.copy_(reward_prompts(self.model, reward_sample, self.held_rewards))
+            self.anchor.prompts.copy_(reward_prompts(self.model, sample, self.held_rewards))
 
     @torch.no_grad()
     def soft_update(self) -> None:

@@ -8,7 +8,7 @@ FB-CPR (`fbcpr.ensemble_td`); exploration and target smoothing the same clipped 
 from __future__ import annotations
 
 import copy
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -123,7 +123,7 @@ class TD3Agent:
         return {**metrics, **dict(zip(("critic_loss", "actor_loss", "reward", "q"), values.tolist()))}
 
     @torch.no_grad()
-    def warm_started(self, reward_sample: dict[str, np.ndarray] | None = None) -> None:
+    def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
         self.target_critic.load_state_dict(self.model.critic.state_dict())
 
     # ------------------------------------------------------------------------------------- state
