@@ -8,14 +8,14 @@ both floors, goal success, tracking EMD, the sum of the task returns, and how ma
 base's on the same seed.
 
 With `--pushes`, the pushed starts each model held (`benchmarks/upright_time.py --push 0.1 0.3` over seeds 1-8,
-of 128), it also applies the shipping rule fixed in docs/results.md sections 21-22 and names the clauses a
+of 128: the count, or that script's `--out` files, one per seed), it also applies the shipping rule fixed in docs/results.md sections 21-22 and names the clauses a
 candidate fails: it replaces the base only if its mean walk and mean task sum are above the base's, its mean
 count of tasks beating both floors is at least the base's less 0.5, its mean goal success at least the base's,
 its mean EMD at most the base's plus 0.1, and it holds at least the base's pushes less 6.
 
     python benchmarks/compare_targets.py --base runs/targets-S2-s0.json runs/targets-S2-s1.json \
         --candidate A runs/targets-A-s0.json runs/targets-A-s1.json --candidate B runs/targets-B-s0.json ... \
-        --pushes base 95 --pushes A 101 --pushes B 90
+        --pushes base 95 --pushes A 101 --pushes B runs/up-B-s1.json runs/up-B-s2.json ...
 """
 from __future__ import annotations
 
@@ -65,6 +65,29 @@ def compare(base: list[Path], candidate: list[Path]) -> dict[str, list[float]]:
     return out
 
 
+def pushes_held(files: list[Path]) -> int:
+    """Pushed starts held by the one model of `benchmarks/upright_time.py --out` files, summed over their seeds,
+    which must differ, with the same push and episodes in all of them."""
+    held, seen = 0, {}
+    for path in files:
+        try:
+            data = json.loads(path.read_text())
+            settings = data["settings"]
+            names = [k for k in data if k not in FLOORS]
+            if len(names) != 1:
+                raise SystemExit(f"{path}: expected one model row besides the floors, found {names}")
+            held += int(data[names[0]]["pushed_held"])
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise SystemExit(f"{path}: not an upright_time.py --out file measured with --push ({e})") from None
+        first = seen.setdefault("settings", {k: v for k, v in settings.items() if k != "seed"})
+        if {k: v for k, v in settings.items() if k != "seed"} != first:
+            raise SystemExit(f"{path}: measured with {settings}, the first file with {first}")
+        if settings["seed"] in seen.setdefault("seeds", set()):
+            raise SystemExit(f"{path}: seed {settings['seed']} is in another file too")
+        seen["seeds"].add(settings["seed"])
+    return held
+
+
 def rule_failures(base: dict[str, list[float]], candidate: dict[str, list[float]], base_pushes: int,
                   candidate_pushes: int) -> list[str]:
     """The clauses of the shipping rule (module docstring) that a candidate fails against the base; [] ships."""
@@ -81,13 +104,18 @@ def main() -> None:
     ap.add_argument("--base", type=Path, nargs="+", required=True, help="the base model's files, one per seed")
     ap.add_argument("--candidate", nargs="+", action="append", default=[], metavar="NAME FILE",
                     help="a name, then that model's files in the base's seed order (repeatable)")
-    ap.add_argument("--pushes", nargs=2, action="append", default=[], metavar=("NAME", "HELD"),
-                    help="pushed starts a model held, of 128 (NAME base for the base; repeatable): applies the rule")
+    ap.add_argument("--pushes", nargs="+", action="append", default=[], metavar="NAME HELD",
+                    help="pushed starts a model held, of 128, as a count or upright_time.py --out files (NAME base "
+                         "for the base; repeatable): applies the rule")
     args = ap.parse_args()
-    try:
-        pushes = {name: int(held) for name, held in args.pushes}
-    except ValueError:
-        ap.error(f"--pushes: the count of held starts must be an integer, got {args.pushes}")
+    pushes = {}
+    for name, *held in args.pushes:
+        if len(held) == 1 and held[0].isdigit():
+            pushes[name] = int(held[0])
+        elif held and not any(h.isdigit() for h in held):
+            pushes[name] = pushes_held([Path(h) for h in held])
+        else:
+            ap.error(f"--pushes {name}: give one count of held starts, or upright_time.py --out files, got {held}")
     names = {"base", *(c[0] for c in args.candidate)}
     if set(pushes) - names:
         ap.error(f"--pushes: no model named {sorted(set(pushes) - names)[0]!r}")

@@ -97,3 +97,39 @@ def test_the_rule_is_printed_for_candidates_with_pushes(tmp_path, capsys, monkey
     with pytest.raises(SystemExit):
         compare_targets.main()
     assert "no model named 'D'" in capsys.readouterr().err
+
+
+def test_pushes_are_summed_from_upright_time_out_files(tmp_path, capsys, monkeypatch):
+    """A real upright_time.py run writes the held pushed starts that the rule reads; mixed settings are refused."""
+    up = str(Path(__file__).parents[1] / "benchmarks" / "upright_time.py")
+    run = subprocess.run([sys.executable, up, "pretrained", "--episodes", "2", "--steps", "15", "--seed", "1",
+                          "--push", "0.1", "0.3", "--out", str(tmp_path / "s1.json")],
+                         capture_output=True, text=True, check=True).stdout
+    printed = [line for line in run.splitlines() if "pushed start" in line][-1]   # the model's row, after the floors
+    held = int(printed.split("whole 0.5 s: ")[1].split("/")[0])
+    data = json.loads((tmp_path / "s1.json").read_text())
+    assert data["pretrained"]["pushed_held"] == held and len(data["pretrained"]["seconds"]) == 2
+    data["settings"]["seed"] = 2
+    (tmp_path / "s2.json").write_text(json.dumps(data))
+    assert compare_targets.pushes_held([tmp_path / "s1.json", tmp_path / "s2.json"]) == 2 * held
+    with pytest.raises(SystemExit, match="seed 1 is in another file"):
+        compare_targets.pushes_held([tmp_path / "s1.json", tmp_path / "s1.json"])
+    data["settings"]["push"] = [0.2, 0.3]
+    (tmp_path / "other.json").write_text(json.dumps(data))
+    with pytest.raises(SystemExit, match="other.json: measured with"):
+        compare_targets.pushes_held([tmp_path / "s1.json", tmp_path / "other.json"])
+    unpushed = {k: v for k, v in data["pretrained"].items() if k != "pushed_held"}
+    (tmp_path / "unpushed.json").write_text(json.dumps({**data, "pretrained": unpushed}))
+    with pytest.raises(SystemExit, match="unpushed.json: not an upright_time.py --out file measured with --push"):
+        compare_targets.pushes_held([tmp_path / "unpushed.json"])
+
+    b = targets_file(tmp_path / "b.json", "base", 0, {"move-ego-0-2": 10.0})
+    c = targets_file(tmp_path / "c.json", "cand", 0, {"move-ego-0-2": 12.0})
+    argv = ["compare_targets.py", "--base", str(b), "--candidate", "C", str(c), "--pushes", "base", str(2 * held + 7)]
+    monkeypatch.setattr("sys.argv", argv + ["--pushes", "C", str(tmp_path / "s1.json"), str(tmp_path / "s2.json")])
+    compare_targets.main()
+    assert f"pushes {2 * held}/128  rule: fails pushes" in capsys.readouterr().out
+    monkeypatch.setattr("sys.argv", argv + ["--pushes", "C", "80", str(tmp_path / "s1.json")])
+    with pytest.raises(SystemExit):
+        compare_targets.main()
+    assert "--pushes C: give one count" in capsys.readouterr().err
