@@ -179,6 +179,9 @@ class TrainConfig:
     priority_every: int = _f(1_000_000, NON_NEGATIVE)
     priority_max_clips: int = _f(256, _range(1, 10**6))
     eval_every: int = _f(0, NON_NEGATIVE)
+    # also evaluate once before the first rollout, at env step 0: a run continued with --init-from then logs the
+    # model it starts from on the same starts as every later evaluation, and that model competes for keep_best
+    eval_at_start: bool = _f(False)
     # humanoid: each evaluation also measures the median seconds upright under the stand prompt over this many
     # standing and pushed standing starts (eval/upright_s, eval/upright_pushed_s) and the share of as many fall
     # starts that got up (eval/got_up; fbcpr.evaluation.upright)
@@ -357,6 +360,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
             raise ConfigError(f"train.{key}: prompting a reward needs a reward-inference sample; set "
                               "train.reward_buffer_size > 0")
     _check_eval_tasks(tc.eval_tasks)
+    if tc.eval_at_start and not tc.eval_every:
+        raise ConfigError("train.eval_at_start: needs train.eval_every > 0 (what to evaluate is set for the periodic "
+                          "evaluations)")
     if tc.keep_best_requires and not tc.keep_best:
         raise ConfigError("train.keep_best_requires: minimums for the best checkpoint need train.keep_best")
     for key, metric in [("keep_best", tc.keep_best)] + [("keep_best_requires", m) for m in tc.keep_best_requires]:

@@ -134,8 +134,12 @@ class Trainer:
         if held and init_from is None and not resume:
             raise ConfigError(f"{held[0]}: holds a run near the model it continues, so it needs --init-from "
                               "(a fresh run has no model to hold)")
+        if tc.eval_at_start and init_from is None and not resume:
+            raise ConfigError("train.eval_at_start: evaluates the model a run continues, so it needs --init-from")
         # the loaded model's reward-inference sample, which every checkpoint carries as it is (train.keep_reward_sample)
         self._kept_sample: dict[str, np.ndarray] | None = None
+        # a warm start's reader of that sample: prompts while the replay buffer is still empty (train.eval_at_start)
+        self._loaded_sample: Callable[[], dict[str, np.ndarray] | None] | None = None
         self.warm_started = init_from is not None and not resume
         if self.warm_started:
             self._warm_start(init_from)
@@ -148,7 +152,7 @@ class Trainer:
 
         self.env_steps = self.updates = self.episodes = 0
         self.next_priority = tc.priority_every or math.inf
-        self.next_eval = tc.eval_every or math.inf
+        self.next_eval = 0 if tc.eval_at_start and tc.eval_every else (tc.eval_every or math.inf)
         self.next_ckpt = tc.checkpoint_every or math.inf
         self.next_log = 0
         self.emd: dict[str, float] = {}
@@ -203,6 +207,8 @@ class Trainer:
         steps_per_phase = phase_steps(tc, self.replicas.world_size)
         try:
             with self._progress(stop_at) as (progress, task):
+                if self.next_eval == 0:  # train.eval_at_start: the model as it was created or loaded
+                    self._periodic(t0, steps0, stop_at)
                 while self.env_steps < stop_at and not self._halt():
                     for _ in range(steps_per_phase):
                         self._env_step()
@@ -509,6 +515,9 @@ class Trainer:
         never leaves reward prompts with less data than the run had."""
         if self._kept_sample is not None:
             return self._kept_sample, len(self._kept_sample["next_obs"])
+        if not len(self.buffer) and self._loaded_sample is not None:  # a warm start before its first rollout
+            loaded = self._loaded_sample()
+            return loaded, 0 if loaded is None else len(loaded["next_obs"])
         n_max, rng = self.cfg.train.reward_buffer_size, np.random.default_rng(self.env_steps)
         new_n = len(self.buffer)
         if self._carried is None:
@@ -556,7 +565,7 @@ class Trainer:
             raise ConfigError(f"env.action_mapping: {self.cfg.env.action_mapping!r} differs from {theirs!r} of the "
                               f"--init-from checkpoint {ckpt.path}")
         load_state_strict(self.agent.model, ckpt.model.state_dict(), f"{ckpt.path / 'model.safetensors'} (--init-from)")
-        sample = functools.cache(ckpt.reward_buffer)  # read at most once, and only where something needs it
+        sample = self._loaded_sample = functools.cache(ckpt.reward_buffer)  # read at most once, only where needed
         if self.cfg.train.keep_reward_sample:
             self._kept_sample = sample()
             if self._kept_sample is None:

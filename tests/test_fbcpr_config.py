@@ -33,6 +33,7 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
     ({"train": {"lr": float("nan")}}, "train.lr"),
     ({"env": {"name": "toy"}, "train": {"eval_every": 10, "eval_upright": 4}}, "train.eval_upright"),  # no humanoid
     ({"train": {"eval_upright": 4}}, "train.eval_upright"),                                  # never evaluated
+    ({"train": {"eval_at_start": True}}, "train.eval_at_start"),                             # nothing periodic
     ({"train": {"eval_every": 10, "eval_upright": 4, "reward_buffer_size": 0}}, "train.eval_upright"),  # no prompt
     ({"train": {"eval_every": 10, "keep_best": "upright_s"}}, "train.keep_best"),            # not an eval/ metric
     ({"train": {"keep_best": "eval/tracking_emd"}}, "train.keep_best"),                     # never evaluated

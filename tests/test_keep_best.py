@@ -144,3 +144,47 @@ def test_a_resume_follows_the_evaluation_period_of_its_new_config(tmp_path):
     # switched off again: no evaluation, and the run still ends (a period of 0 must not be stepped through)
     summary = Trainer(toy_cfg(eval_every=0, keep_best=""), tmp_path, resume=True, progress=False).run(max_env_steps=80)
     assert summary["env_steps"] == 240 and len(logged(tmp_path, "eval/score")) == 2
+
+
+def test_eval_at_start_logs_the_loaded_model_at_step_zero_where_it_competes_for_best(tmp_path):
+    Trainer(toy_cfg(), tmp_path / "base", evaluate=scripted([1.0]), progress=False).run(max_env_steps=40)
+    run = Trainer(toy_cfg(eval_at_start=True), tmp_path / "c", evaluate=scripted([5.0, 2.0, 3.0]), progress=False,
+                  init_from=tmp_path / "base")
+    loaded = {k: v.clone() for k, v in run.agent.model.state_dict().items()}
+    run.run(max_env_steps=80)
+    assert logged(tmp_path / "c", "eval/score") == [(0, 5.0), (40, 2.0), (80, 3.0)]
+    name, best = best_of(tmp_path / "c")
+    assert name == "step_0000000000" and best["value"] == 5.0   # nothing beat the model it started from
+    start = make_agent(str(tmp_path / "c" / "checkpoints" / "best")).model.state_dict()
+    assert all(torch.equal(start[k], v) for k, v in loaded.items())
+    # a resume goes on with the periodic evaluations only
+    Trainer(toy_cfg(eval_at_start=True), tmp_path / "c", resume=True, evaluate=scripted([0.5]),
+            progress=False).run(max_env_steps=40)
+    assert logged(tmp_path / "c", "eval/score")[-1] == (120, 0.5) and len(logged(tmp_path / "c", "eval/score")) == 4
+
+
+def test_the_start_evaluation_prompts_with_the_loaded_sample_and_needs_init_from(tmp_path):
+    import numpy as np
+
+    from fbcpr.checkpoint import latest_checkpoint, load_checkpoint
+    from fbcpr.config import ConfigError
+
+    def fbcpr_cfg(**train):
+        return config_from_dict({
+            "model": {"preset": "tiny"}, "agent": {"batch_size": 32}, "env": {"name": "toy", "max_episode_steps": 30},
+            "train": {"total_env_steps": 100_000, "num_envs": 4, "warmup_steps": 40, "rollout_steps": 20,
+                      "updates_per_rollout": 2, "buffer_capacity": 1000, "priority_every": 0, "eval_every": 0,
+                      "checkpoint_every": 0, "log_every": 40, "reward_buffer_size": 60, "torch_threads": 1, **train}})
+
+    base = Trainer(fbcpr_cfg(), tmp_path / "base", progress=False)
+    base.run(max_env_steps=80)
+    loaded = load_checkpoint(latest_checkpoint(tmp_path / "base" / "checkpoints")).reward_buffer()
+    start = {"eval_every": 40, "eval_at_start": True, "keep_best": "eval/score"}
+    with pytest.raises(ConfigError, match="train.eval_at_start: .*needs --init-from"):
+        Trainer(fbcpr_cfg(**start), tmp_path / "fresh", evaluate=scripted([1.0]), progress=False)
+    Trainer(fbcpr_cfg(**start), tmp_path / "c", evaluate=scripted([5.0, 1.0]), progress=False,
+            init_from=tmp_path / "base").run(max_env_steps=40)
+    best = load_checkpoint(resolve_checkpoint(tmp_path / "c" / "checkpoints" / "best"))
+    assert best.path.name == "step_0000000000"
+    for key in loaded:    # saved before any rollout: the model as loaded, prompted through its own sample
+        np.testing.assert_array_equal(best.reward_buffer()[key], loaded[key])
