@@ -13,9 +13,16 @@ candidate fails: it replaces the base only if its mean walk and mean task sum ar
 count of tasks beating both floors is at least the base's less 0.5, its mean goal success at least the base's,
 its mean EMD at most the base's plus 0.1, and it holds at least the base's pushes less 6.
 
+With `--noise`, the files of noise copies of the base (`benchmarks/noise_copy.py`: the same policy, to 1e-4 in its
+actions, whose rollouts the chaotic physics still sends elsewhere), it prints each copy's row and, per measure, the
+largest distance of a copy's mean from the base's mean: the noise floor. The rule then widens every margin by it:
+a candidate's mean walk and task sum must beat the base's by more than the floor, and its tasks, goal success and
+EMD may fall short of the base by the floor too. A copy of the base fails the rule of sections 21-22 (section 27).
+
     python benchmarks/compare_targets.py --base runs/targets-S2-s0.json runs/targets-S2-s1.json \
         --candidate A runs/targets-A-s0.json runs/targets-A-s1.json --candidate B runs/targets-B-s0.json ... \
-        --pushes base 95 --pushes A 101 --pushes B runs/up-B-s1.json runs/up-B-s2.json ...
+        --pushes base 95 --pushes A 101 --pushes B runs/up-B-s1.json runs/up-B-s2.json ... \
+        --noise runs/targets-S2p-s0.json runs/targets-S2p-s1.json --noise runs/targets-S2q-s0.json ...
 """
 from __future__ import annotations
 
@@ -88,13 +95,24 @@ def pushes_held(files: list[Path]) -> int:
     return held
 
 
+def noise_floor(base: dict[str, list[float]], copies: list[dict[str, list[float]]]) -> dict[str, float]:
+    """Per measure, the largest distance between a noise copy's mean and the base's mean (0 without copies)."""
+    return {m: max((abs(_mean(c[m]) - _mean(base[m])) for c in copies), default=0.0) for m in base}
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values)
+
+
 def rule_failures(base: dict[str, list[float]], candidate: dict[str, list[float]], base_pushes: int,
-                  candidate_pushes: int) -> list[str]:
-    """The clauses of the shipping rule (module docstring) that a candidate fails against the base; [] ships."""
-    mean = {m: (sum(base[m]) / len(base[m]), sum(candidate[m]) / len(candidate[m])) for m in base}
-    checks = {"walk": mean["walk"][1] > mean["walk"][0], "sum": mean["sum"][1] > mean["sum"][0],
-              "tasks": mean["tasks > floors"][1] >= mean["tasks > floors"][0] - 0.5,
-              "goal": mean["goal"][1] >= mean["goal"][0], "EMD": mean["EMD"][1] <= mean["EMD"][0] + 0.1,
+                  candidate_pushes: int, noise: dict[str, float] | None = None) -> list[str]:
+    """The clauses of the shipping rule (module docstring) that a candidate fails against the base, each margin
+    widened by the `noise` floor of that measure; [] ships."""
+    b, c = ({m: _mean(res[m]) for m in base} for res in (base, candidate))
+    n = {m: 0.0 for m in base} | (noise or {})
+    checks = {"walk": c["walk"] > b["walk"] + n["walk"], "sum": c["sum"] > b["sum"] + n["sum"],
+              "tasks": c["tasks > floors"] >= b["tasks > floors"] - 0.5 - n["tasks > floors"],
+              "goal": c["goal"] >= b["goal"] - n["goal"], "EMD": c["EMD"] <= b["EMD"] + 0.1 + n["EMD"],
               "pushes": candidate_pushes >= base_pushes - 6}
     return [clause for clause, ok in checks.items() if not ok]
 
@@ -107,6 +125,9 @@ def main() -> None:
     ap.add_argument("--pushes", nargs="+", action="append", default=[], metavar="NAME HELD",
                     help="pushed starts a model held, of 128, as a count or upright_time.py --out files (NAME base "
                          "for the base; repeatable): applies the rule")
+    ap.add_argument("--noise", type=Path, nargs="+", action="append", default=[], metavar="FILE",
+                    help="a noise copy of the base: its files in the base's seed order (repeatable); sizes the "
+                         "noise floor that the rule's margins add")
     args = ap.parse_args()
     pushes = {}
     for name, *held in args.pushes:
@@ -122,17 +143,22 @@ def main() -> None:
     if pushes and "base" not in pushes:
         ap.error("--pushes: give the base's count too (--pushes base N)")
     base_res = compare(args.base, args.base)
+    noise = noise_floor(base_res, [compare(args.base, files) for files in args.noise])
     print("seeds " + ", ".join(str(model_row(p)[0].get("seed")) for p in args.base) + "; per seed (mean)")
-    for name, *files in [["base", *map(str, args.base)], *args.candidate]:
+    copies = [[f"noise copy {i + 1}", *map(str, files)] for i, files in enumerate(args.noise)]
+    for name, *files in [["base", *map(str, args.base)], *copies, *args.candidate]:
         if not files:
             ap.error(f"--candidate {name}: give its files after the name")
         res = compare(args.base, [Path(f) for f in files])
         cells = [f"{m} " + " / ".join(FORMATS[m][0].format(v) for v in vals) + f" ({FORMATS[m][1].format(sum(vals) / len(vals))})"
                  for m, vals in res.items() if not (name == "base" and m == "> base")]
         if name != "base" and name in pushes:
-            failed = rule_failures(base_res, res, pushes["base"], pushes[name])
+            failed = rule_failures(base_res, res, pushes["base"], pushes[name], noise)
             cells.append(f"pushes {pushes[name]}/128  rule: " + ("passes" if not failed else "fails " + ", ".join(failed)))
         print(f"{name:24s} " + "  ".join(cells))
+    if args.noise:
+        print(f"{'noise floor':24s} " + "  ".join(f"{m} ±" + FORMATS[m][1].format(v) for m, v in noise.items()
+                                                  if m != "> base"))
 
 
 if __name__ == "__main__":

@@ -133,3 +133,28 @@ def test_pushes_are_summed_from_upright_time_out_files(tmp_path, capsys, monkeyp
     with pytest.raises(SystemExit):
         compare_targets.main()
     assert "--pushes C: give one count" in capsys.readouterr().err
+
+
+def test_noise_copies_set_a_floor_that_widens_every_margin_of_the_rule(tmp_path, capsys, monkeypatch):
+    def files(name, walk, jump, **measures):
+        return [targets_file(tmp_path / f"{name}{s}.json", name, s, {"move-ego-0-2": walk + s, "jump-2": jump},
+                             **measures) for s in (0, 1)]
+    base = files("base", 10.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
+    copies = [files("p", 12.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.2),
+              files("q", 9.0, 1.0, beats_floors=39, goal_success=0.05, tracking_emd=4.9)]
+    b = compare_targets.compare(base, base)
+    floor = compare_targets.noise_floor(b, [compare_targets.compare(base, c) for c in copies])
+    assert floor["walk"] == 2.0 and floor["sum"] == 5.0 and floor["goal"] == pytest.approx(0.05)
+    assert floor["EMD"] == pytest.approx(0.2) and floor["tasks > floors"] == 1.0
+    # better than the base, but not by more than its copies differ from it: a pass without the floor only
+    cand = compare_targets.compare(base, files("c", 11.5, 8.0, beats_floors=39, goal_success=0.08, tracking_emd=5.25))
+    assert compare_targets.rule_failures(b, cand, 95, 95) == ["tasks", "goal", "EMD"]
+    assert compare_targets.rule_failures(b, cand, 95, 95, floor) == ["walk", "sum"]
+    argv = ["compare_targets.py", "--base", *map(str, base), "--candidate", "C", *map(str, files("c", 13.0, 8.0, beats_floors=40)),
+            "--pushes", "base", "95", "--pushes", "C", "95"]
+    monkeypatch.setattr("sys.argv", argv + sum((["--noise", *map(str, c)] for c in copies), []))
+    compare_targets.main()
+    out = capsys.readouterr().out.splitlines()
+    assert out[2].startswith("noise copy 1") and out[3].startswith("noise copy 2")
+    assert out[-1].startswith("noise floor") and "walk ±2.0" in out[-1] and "sum ±5" in out[-1]
+    assert "rule: passes" in out[4]   # walk +3 and sum +6 beat the floor; goal, EMD and tasks are within it
