@@ -7,7 +7,7 @@ The BASE model is rolled out under each task's reward prompt (its own z, from it
 states it visits every other model is asked for its action under the same z. Each cell is the mean squared
 difference per action component. The reference column, measured in the same run, is the base's own exploration
 noise on those states (sampled action against its mean, ~actor_std^2): a drift well below it is a change smaller
-than the noise the base was trained with. docs/results.md sections 26-27 use it on continuations of the shipped
+than the noise the base was trained with. docs/results.md section 27 uses it on continuations of the shipped
 model (one z for every model, so a drift of the prompts themselves does not enter; see cross_prompt.py for that).
 """
 from __future__ import annotations

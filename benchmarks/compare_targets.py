@@ -8,8 +8,8 @@ both floors, goal success, tracking EMD, the sum of the task returns, and how ma
 base's on the same seed.
 
 With `--pushes`, the pushed starts each model held (`benchmarks/upright_time.py --push 0.1 0.3` over seeds 1-8,
-of 128: the count, or that script's `--out` files, one per seed), it also applies the shipping rule fixed in docs/results.md sections 21-22 and names the clauses a
-candidate fails: it replaces the base only if its mean walk and mean task sum are above the base's, its mean
+of 128: the count, or that script's `--out` files, one per seed), it also applies the shipping rule fixed in
+docs/results.md sections 21-22 and names the clauses a candidate fails: it replaces the base only if its mean walk and mean task sum are above the base's, its mean
 count of tasks beating both floors is at least the base's less 0.5, its mean goal success at least the base's,
 its mean EMD at most the base's plus 0.1, and it holds at least the base's pushes less 6.
 
@@ -75,23 +75,23 @@ def compare(base: list[Path], candidate: list[Path]) -> dict[str, list[float]]:
 def pushes_held(files: list[Path]) -> int:
     """Pushed starts held by the one model of `benchmarks/upright_time.py --out` files, summed over their seeds,
     which must differ, with the same push and episodes in all of them."""
-    held, seen = 0, {}
+    held, first, seeds = 0, None, set()
     for path in files:
         try:
             data = json.loads(path.read_text())
-            settings = data["settings"]
             names = [k for k in data if k not in FLOORS]
             if len(names) != 1:
                 raise SystemExit(f"{path}: expected one model row besides the floors, found {names}")
             held += int(data[names[0]]["pushed_held"])
-        except (OSError, ValueError, KeyError, TypeError) as e:
+            seed, rest = data["settings"]["seed"], {k: v for k, v in data["settings"].items() if k != "seed"}
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
             raise SystemExit(f"{path}: not an upright_time.py --out file measured with --push ({e})") from None
-        first = seen.setdefault("settings", {k: v for k, v in settings.items() if k != "seed"})
-        if {k: v for k, v in settings.items() if k != "seed"} != first:
-            raise SystemExit(f"{path}: measured with {settings}, the first file with {first}")
-        if settings["seed"] in seen.setdefault("seeds", set()):
-            raise SystemExit(f"{path}: seed {settings['seed']} is in another file too")
-        seen["seeds"].add(settings["seed"])
+        first = rest if first is None else first
+        if rest != first:
+            raise SystemExit(f"{path}: measured with {rest}, the first file with {first}")
+        if seed in seeds:
+            raise SystemExit(f"{path}: seed {seed} is in another file too")
+        seeds.add(seed)
     return held
 
 
