@@ -3,12 +3,13 @@
 resume remembers."""
 import shutil
 
+import numpy as np
 import pytest
 import torch
 
 from fbcpr.bfm import resolve_checkpoint
-from fbcpr.checkpoint import CheckpointError, read_trainer_meta
-from fbcpr.config import config_from_dict
+from fbcpr.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, read_trainer_meta
+from fbcpr.config import ConfigError, config_from_dict
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.runner import evaluate
 from fbcpr.trainer import Trainer
@@ -164,11 +165,6 @@ def test_eval_at_start_logs_the_loaded_model_at_step_zero_where_it_competes_for_
 
 
 def test_the_start_evaluation_prompts_with_the_loaded_sample_and_needs_init_from(tmp_path):
-    import numpy as np
-
-    from fbcpr.checkpoint import latest_checkpoint, load_checkpoint
-    from fbcpr.config import ConfigError
-
     def fbcpr_cfg(**train):
         return config_from_dict({
             "model": {"preset": "tiny"}, "agent": {"batch_size": 32}, "env": {"name": "toy", "max_episode_steps": 30},
