@@ -138,7 +138,7 @@ class Trainer:
             raise ConfigError("train.eval_at_start: evaluates the model a run continues, so it needs --init-from")
         # the loaded model's reward-inference sample, which every checkpoint carries as it is (train.keep_reward_sample)
         self._kept_sample: dict[str, np.ndarray] | None = None
-        # a warm start's reader of that sample: prompts while the replay buffer is still empty (train.eval_at_start)
+        # a warm start's reader of that sample, for train.eval_at_start: prompts at step 0, and is let go after it
         self._loaded_sample: Callable[[], dict[str, np.ndarray] | None] | None = None
         self.warm_started = init_from is not None and not resume
         if self.warm_started:
@@ -207,8 +207,9 @@ class Trainer:
         steps_per_phase = phase_steps(tc, self.replicas.world_size)
         try:
             with self._progress(stop_at) as (progress, task):
-                if self.next_eval == 0:  # train.eval_at_start: the model as it was created or loaded
+                if self.next_eval == 0:  # train.eval_at_start: the model as it was loaded
                     self._periodic(t0, steps0, stop_at)
+                    self._loaded_sample = None  # its only reader; a cached sample would be held for the run
                 while self.env_steps < stop_at and not self._halt():
                     for _ in range(steps_per_phase):
                         self._env_step()
@@ -565,7 +566,8 @@ class Trainer:
             raise ConfigError(f"env.action_mapping: {self.cfg.env.action_mapping!r} differs from {theirs!r} of the "
                               f"--init-from checkpoint {ckpt.path}")
         load_state_strict(self.agent.model, ckpt.model.state_dict(), f"{ckpt.path / 'model.safetensors'} (--init-from)")
-        sample = self._loaded_sample = functools.cache(ckpt.reward_buffer)  # read at most once, only where needed
+        sample = functools.cache(ckpt.reward_buffer)  # read at most once, and only where something needs it
+        self._loaded_sample = sample if self.cfg.train.eval_at_start else None
         if self.cfg.train.keep_reward_sample:
             self._kept_sample = sample()
             if self._kept_sample is None:
