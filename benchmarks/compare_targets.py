@@ -38,17 +38,23 @@ FORMATS = {"walk": ("{:.1f}", "{:.1f}"), "tasks > floors": ("{:.0f}", "{:.2f}"),
            "EMD": ("{:.2f}", "{:.2f}"), "sum": ("{:,.0f}", "{:,.0f}"), "> base": ("{:.0f}", "{:.1f}")}
 
 
+def only_model(path: Path, data: dict[str, Any]) -> str:
+    """The name of the one model row of a results file (the row that is not a floor or the settings)."""
+    names = [k for k in data if k not in FLOORS]
+    if len(names) != 1:
+        raise SystemExit(f"{path}: expected one model row besides the floors, found {names}")
+    return names[0]
+
+
 def model_row(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """The settings of a targets.py file and the row of its one model (the row that is not a floor)."""
     try:
         data = json.loads(path.read_text())
-        names = [k for k in data if k not in FLOORS]
-        if len(names) != 1:
-            raise SystemExit(f"{path}: expected one model row besides the floors, found {names}")
-        row = data[names[0]]
+        name = only_model(path, data)
+        row = data[name]
         missing = [k for k in (*MEASURES.values(), "returns") if k not in row]
         if missing:
-            raise SystemExit(f"{path}: the row {names[0]!r} has no {', '.join(missing)}")
+            raise SystemExit(f"{path}: the row {name!r} has no {', '.join(missing)}")
         return data["settings"], row
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise SystemExit(f"{path}: not a targets.py --out file ({e})") from None
@@ -79,10 +85,7 @@ def pushes_held(files: list[Path]) -> int:
     for path in files:
         try:
             data = json.loads(path.read_text())
-            names = [k for k in data if k not in FLOORS]
-            if len(names) != 1:
-                raise SystemExit(f"{path}: expected one model row besides the floors, found {names}")
-            held += int(data[names[0]]["pushed_held"])
+            held += int(data[only_model(path, data)]["pushed_held"])
             seed, rest = data["settings"]["seed"], {k: v for k, v in data["settings"].items() if k != "seed"}
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
             raise SystemExit(f"{path}: not an upright_time.py --out file measured with --push ({e})") from None
