@@ -149,6 +149,22 @@ class FBCPRAgent:
     def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, float]:
         """One gradient step on all networks. batch: obs, action, next_obs, z, terminated (n rows);
         expert_windows: (n / seq_length, seq_length, obs_dim) raw observations from the motion data."""
+        out = self.backward(batch, expert_windows)
+        for opt in self.optimizers.values():
+            opt.step()
+        self.soft_update()
+        self.num_updates += 1
+        keys = list(out)
+        values = torch.stack([out[k].detach().float() for k in keys]).tolist()
+        metrics = dict(zip(keys, values))
+        if self.energy is not None:
+            self.energy.step_ema()
+            metrics.update(self.energy.end_phase(metrics["energy_expert"]))
+        return metrics
+
+    def backward(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, Tensor]:
+        """The update's losses on one batch, with their gradients left in every optimised network and no step
+        taken: what `update` applies, and what benchmarks/bf16_agreement.py compares between precisions."""
         dev = self.device
         obs, action, next_obs, z_buf = (batch[k].to(dev, torch.float32) for k in ("obs", "action", "next_obs", "z"))
         terminated = batch["terminated"].to(dev, torch.float32).reshape(-1)
@@ -166,17 +182,7 @@ class FBCPRAgent:
         total.backward()
         if self.energy is not None:
             torch.nn.utils.clip_grad_norm_(self.energy.energy.parameters(), self.cfg.near.grad_clip)
-        for opt in self.optimizers.values():
-            opt.step()
-        self.soft_update()
-        self.num_updates += 1
-        keys = list(out)
-        values = torch.stack([out[k].detach().float() for k in keys]).tolist()
-        metrics = dict(zip(keys, values))
-        if self.energy is not None:
-            self.energy.step_ema()
-            metrics.update(self.energy.end_phase(metrics["energy_expert"]))
-        return metrics
+        return out
 
     def _losses(self, obs: Tensor, action: Tensor, next_obs: Tensor, z_buf: Tensor, terminated: Tensor,
                 expert: Tensor) -> dict[str, Tensor]:
