@@ -151,6 +151,9 @@ class Trainer:
         self.buffer = ReplayBuffer(tc.buffer_capacity, specs, mmap if self._memmap_buffer else None, stride=tc.num_envs)
 
         self.env_steps = self.updates = self.episodes = 0
+        if getattr(cfg.agent, "bf16", False) == "auto":  # a choice timed on this machine: say which, as it changes speed
+            self._notice(f"agent.bf16: auto chose {'bf16' if self.agent.bf16 else 'float32'} on {self.device.type} "
+                         "(bf16 where its timed matmul is faster, fbcpr.precision)")
         self.next_priority = tc.priority_every or math.inf
         self.next_eval = 0 if tc.eval_at_start and tc.eval_every else (tc.eval_every or math.inf)
         self.next_ckpt = tc.checkpoint_every or math.inf

@@ -381,3 +381,18 @@ def test_env_threads_reach_the_env(tmp_path, monkeypatch, env_threads, want):
     monkeypatch.setattr(trainer_mod, "make_env", spy)
     Trainer(tiny_cfg(env_threads=env_threads), tmp_path, progress=False)
     assert seen == [want]
+
+
+def test_bf16_auto_says_which_precision_it_chose(tmp_path, monkeypatch):
+    from dataclasses import replace
+
+    from fbcpr import precision
+
+    for bf16_time, chosen in ((0.2, "bf16"), (5.0, "float32")):
+        monkeypatch.setattr(precision, "matmul_seconds", lambda dtype, device: bf16_time if dtype == torch.bfloat16 else 1.0)
+        cfg = tiny_cfg()
+        tr = Trainer(replace(cfg, agent=replace(cfg.agent, bf16="auto")), tmp_path / chosen, progress=False)
+        assert tr.agent.bf16 is (chosen == "bf16")
+        assert f"agent.bf16: auto chose {chosen} on cpu" in (tmp_path / chosen / "warnings.txt").read_text()
+    Trainer(tiny_cfg(), tmp_path / "fixed", progress=False)   # a fixed setting needs no word
+    assert not (tmp_path / "fixed" / "warnings.txt").exists()
