@@ -152,6 +152,7 @@ class Trainer:
 
         self.env_steps = self.updates = self.episodes = 0
         if getattr(cfg.agent, "bf16", False) == "auto":  # a choice timed on this machine: say which, as it changes speed
+            self.agent.bf16 = agree_on_bf16(self.agent.bf16, r)
             self._notice(f"agent.bf16: auto chose {'bf16' if self.agent.bf16 else 'float32'} on {self.device.type} "
                          "(bf16 where its timed matmul is faster, fbcpr.precision)")
         self.next_priority = tc.priority_every or math.inf
@@ -829,6 +830,12 @@ def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Pa
     `keep_every` env steps (0: none spared)."""
     steps = list_checkpoints(root)[:-keep_last]
     return [p for p in steps if not (keep_every and int(p.name.split("_")[1]) % keep_every == 0)]
+
+
+def agree_on_bf16(chosen: bool, replicas: distributed.Replicas) -> bool:
+    """`agent.bf16: auto` under torchrun: each rank timed its own matmul, and the ranks take bf16 only if all chose
+    it, so that every replica computes its gradients in one precision."""
+    return bool(replicas.sum(np.array([float(chosen)]))[0] == replicas.world_size) if replicas.enabled else chosen
 
 
 def _summary_writer(path: Path) -> Any:

@@ -396,3 +396,14 @@ def test_bf16_auto_says_which_precision_it_chose(tmp_path, monkeypatch):
         assert f"agent.bf16: auto chose {chosen} on cpu" in (tmp_path / chosen / "warnings.txt").read_text()
     Trainer(tiny_cfg(), tmp_path / "fixed", progress=False)   # a fixed setting needs no word
     assert not (tmp_path / "fixed" / "warnings.txt").exists()
+
+
+def test_ranks_take_bf16_only_where_every_rank_chose_it():
+    from fbcpr.distributed import Replicas
+    from fbcpr.trainer import agree_on_bf16
+
+    two = Replicas(rank=0, world_size=2)
+    for other, mine, agreed in ((1.0, True, True), (0.0, True, False), (1.0, False, False)):
+        two.sum = lambda values, other=other: values + other   # the other rank's choice, as all_reduce adds it
+        assert agree_on_bf16(mine, two) is agreed
+    assert agree_on_bf16(True, Replicas()) is True and agree_on_bf16(False, Replicas()) is False   # one process
