@@ -1,6 +1,6 @@
 """How far the bf16 update's gradients are from float32's, next to how far two float32 batches' gradients are.
 
-    python benchmarks/bf16_agreement.py runs/Qb.yaml --init-from pretrained --steps 4096 --batches 8
+    python benchmarks/bf16_agreement.py configs/cpu.yaml --init-from pretrained --steps 4096 --batches 8
 
 A warm-started run of CONFIG collects STEPS env steps with the loaded policy (no update), and on each of BATCHES
 replay batches the update's losses and gradients are computed twice, in float32 and under `agent.bf16`
@@ -62,6 +62,8 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     cfg = load_config(args.config)
+    if cfg.algorithm != "fb_cpr":
+        raise SystemExit(f"{args.config}: algorithm {cfg.algorithm!r}; this probe compares FB-CPR's update only")
     cfg = dataclasses.replace(
         cfg, agent=dataclasses.replace(cfg.agent, bf16=False),
         train=dataclasses.replace(cfg.train, seed=args.seed, warmup_steps=10 ** 12, eval_every=0, eval_at_start=False,

@@ -55,3 +55,10 @@ def test_command_line_prints_every_trained_network_and_loss(tmp_path, two_clips)
     for name in ("forward_map", "backward_map", "actor", "critic", "discriminator"):
         assert 0.5 < float(rows[name][1]) <= 1.0   # the cosine of the bf16 gradient with float32's
     assert float(rows["fb_loss"][1]) < 0.1       # relative difference of the loss
+
+
+def test_a_config_of_another_method_is_refused_by_name(tmp_path):
+    (tmp_path / "td3.yaml").write_text(yaml.safe_dump({"algorithm": "td3", "env": {"name": "toy"},
+                                                       "agent": {"reward": {"task": "reach-top-right"}}}))
+    run = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "td3.yaml")], capture_output=True, text=True)
+    assert run.returncode != 0 and "td3.yaml: algorithm 'td3'" in run.stderr
