@@ -71,18 +71,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as out:
         trainer = Trainer(cfg, out, init_from=args.init_from)  # its progress bar goes to stderr
         trainer.run()  # fills the replay buffer with the loaded policy's rollouts; no update before warm-up ends
-        agent, rng, a = trainer.agent, np.random.default_rng(args.seed), cfg.agent
-        draws = [(trainer.buffer.sample(rng, a.batch_size, fields=agent.fields),
-                  torch.as_tensor(trainer.bundle.library.sample_windows(rng, a.batch_size // a.seq_length,
-                                                                        a.seq_length)))
-                 for _ in range(args.batches + 1)]
+        agent = trainer.agent
+        draws = [trainer.sample_batch() for _ in range(args.batches + 1)]  # as training draws them
         collected = len(trainer.buffer)
         trainer.close()
     fp32 = [gradients(agent, b, w, bf16=False) for b, w in draws]
     bf16 = [gradients(agent, b, w, bf16=True) for b, w in draws[:-1]]
     vs_bf16 = [compare(f[0], b[0]) for f, b in zip(fp32, bf16)]
     vs_batch = [compare(f[0], g[0]) for f, g in zip(fp32, fp32[1:])]
-    print(f"{args.batches} batches of {a.batch_size} from {collected:,} transitions of {args.init_from} "
+    print(f"{args.batches} batches of {cfg.agent.batch_size} from {collected:,} transitions of {args.init_from} "
           f"under {args.config}")
     print(f"{'network':<15} {'cos fp32-bf16':>14} {'rel. diff':>10} | {'cos next batch (ref)':>21} {'rel. diff':>10}")
     for k in vs_bf16[0]:

@@ -9,9 +9,10 @@ base's on the same seed.
 
 With `--pushes`, the pushed starts each model held (`benchmarks/upright_time.py --push 0.1 0.3` over seeds 1-8,
 of 128: the count, or that script's `--out` files, one per seed), it also applies the shipping rule fixed in
-docs/results.md sections 21-22 and names the clauses a candidate fails: it replaces the base only if its mean walk and mean task sum are above the base's, its mean
-count of tasks beating both floors is at least the base's less 0.5, its mean goal success at least the base's,
-its mean EMD at most the base's plus 0.1, and it holds at least the base's pushes less 6.
+docs/results.md sections 21-22 and names the clauses a candidate fails: it replaces the base only if its mean
+walk and mean task sum are above the base's, its mean count of tasks beating both floors is at least the base's
+less 0.5, its mean goal success at least the base's, its mean EMD at most the base's plus 0.1, and it holds at
+least the base's pushes less 6.
 
 With `--noise`, the files of noise copies of the base (`benchmarks/noise_copy.py`: the same policy, to 1e-4 in its
 actions, whose rollouts the chaotic physics still sends elsewhere), it prints each copy's row and, per measure, the

@@ -289,11 +289,16 @@ class Trainer:
         self.episodes += int(done.sum())
         self.env_steps += n * self.replicas.world_size  # global: every rank steps in lockstep
 
-    def _update(self) -> None:
+    def sample_batch(self) -> tuple[dict[str, Any], torch.Tensor]:
+        """One update's draw, as training takes it: a replay batch and expert windows of the motion library."""
         a = self.cfg.agent
         batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields,
                                    history=getattr(self.agent, "history", 0))  # states before obs: sequence rewards
         windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, a.batch_size // a.seq_length, a.seq_length))
+        return batch, windows
+
+    def _update(self) -> None:
+        batch, windows = self.sample_batch()
         with self.replicas.synchronized():
             self.last_metrics = self.agent.update(batch, windows)
         self.updates += 1
