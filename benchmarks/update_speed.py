@@ -1,6 +1,6 @@
 """Milliseconds per full FB-CPR update (all five networks, targets, Polyak) at several sizes.
 
-    python benchmarks/update_speed.py [--threads 2] [--sizes tiny small paper-S] [--gpu] [--compile]
+    python benchmarks/update_speed.py [--threads 2] [--sizes tiny small paper-S] [--gpu] [--compile] [--graph]
 
 Humanoid dimensions (obs 358, action 69). Each row shows the measured update next to a reference taken in
 the same run: square float32 matmuls of the same total FLOPs (counted with torch's FlopCounterMode on one
@@ -8,6 +8,9 @@ update), i.e. what the update would cost if all its math ran at dense float32 GE
 straightforward implementation of the same losses (one network at a time, no shared passes). `--bf16` adds
 rows for the optional bf16 autocast switch (`agent.bf16`; float32 master weights and optimiser); `--near` rows for
 the NEAR regulariser (`agent.regulariser: near`, its default 3 x 512 energy) in the discriminator's place.
+`--graph` adds GPU rows for the update captured in a CUDA graph (`agent.cuda_graph`), and first checks, per size,
+that the graphed update trains as the eager one does: twins from the same seed, fed the same batches, with
+exploration actions drawn between updates, are compared after every update.
 """
 from __future__ import annotations
 
@@ -20,22 +23,33 @@ from torch.utils.flop_counter import FlopCounterMode
 from fbcpr.fb_cpr import losses
 from fbcpr.fb_cpr.agent import FBCPRAgent
 from fbcpr.config import config_from_dict
+from fbcpr.networks import project_sphere
 
 SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}
+#: The graphed and eager twins agree when no metric, action or weight differs by more than this (float rounding of
+#: kernels that may pick other algorithms inside a capture stays orders of magnitude below it; a graph that replays
+#: stale inputs or the same random draws departs by far more within a few updates).
+AGREE = 1e-3
 OBS, ACT = 358, 69
 
 
-def make(preset: str, device: str, compile_: bool, bf16: bool = False,
-         regulariser: str = "discriminator") -> tuple[FBCPRAgent, dict, torch.Tensor]:
+def make(preset: str, device: str, compile_: bool, bf16: bool = False, regulariser: str = "discriminator",
+         graph: bool = False, data_seed: int = 0) -> tuple[FBCPRAgent, dict, torch.Tensor]:
     n = SIZES[preset]
     cfg = config_from_dict({"model": {"preset": preset, "obs_dim": OBS, "action_dim": ACT},
-                            "agent": {"batch_size": n, "compile": compile_, "bf16": bf16, "regulariser": regulariser}})
+                            "agent": {"batch_size": n, "compile": compile_, "bf16": bf16, "regulariser": regulariser,
+                                      "cuda_graph": graph}})
     agent = FBCPRAgent(cfg.model, cfg.agent, device=device)
-    g = torch.Generator().manual_seed(0)
+    return (agent, *draw(n, cfg.model.z_dim, data_seed))
+
+
+def draw(n: int, z_dim: int, seed: int) -> tuple[dict, torch.Tensor]:
+    """A replay batch of n random humanoid-sized transitions and n / 8 expert windows of 8 states."""
+    g = torch.Generator().manual_seed(seed)
     batch = {"obs": torch.randn(n, OBS, generator=g), "action": torch.rand(n, ACT, generator=g) * 2 - 1,
-             "next_obs": torch.randn(n, OBS, generator=g), "z": agent.model.sample_z(n).cpu(),
-             "terminated": torch.zeros(n)}
-    return agent, batch, torch.randn(n // 8, 8, OBS, generator=g)
+             "next_obs": torch.randn(n, OBS, generator=g),
+             "z": project_sphere(torch.randn(n, z_dim, generator=g)), "terminated": torch.zeros(n)}
+    return batch, torch.randn(n // 8, 8, OBS, generator=g)
 
 
 def straightforward_update(agent: FBCPRAgent, batch: dict, windows: torch.Tensor) -> None:
@@ -109,7 +123,7 @@ def sync(device: str) -> None:
 def time_update(agent: FBCPRAgent, batch: dict, windows: torch.Tensor, device: str, reps: int) -> float:
     batch = {k: v.to(device) for k, v in batch.items()}
     windows = windows.to(device)
-    for _ in range(2):
+    for _ in range(5):  # a graphed update runs 3 eager warm-up calls and captures on the 4th
         agent.update(batch, windows)
     sync(device)
     best = float("inf")
@@ -119,6 +133,30 @@ def time_update(agent: FBCPRAgent, batch: dict, windows: torch.Tensor, device: s
         sync(device)
         best = min(best, time.perf_counter() - t)
     return best
+
+
+def graph_agreement(preset: str, device: str = "cuda", updates: int = 12) -> str:
+    """A graphed and an eager agent from the same seed on the same batches (a new one each update), with
+    exploration actions drawn from the agent's generator between updates, as in training: the largest relative
+    difference of the metrics over all updates, the largest difference of the actions, and of the weights at the
+    end. (Off CUDA both agents run eagerly, so every difference is 0.)"""
+    eager, graphed = make(preset, device, False)[0], make(preset, device, False, graph=True)[0]
+    metric_diff = action_diff = 0.0
+    for step in range(updates):
+        batch, windows = draw(SIZES[preset], eager.z_dim, step)
+        m_e, m_g = eager.update(batch, windows), graphed.update(batch, windows)
+        metric_diff = max(metric_diff, max(abs(m_e[k] - m_g[k]) / max(abs(m_e[k]), 1e-6) for k in m_e))
+        obs, z = batch["obs"][:64].to(device), batch["z"][:64].to(device)
+        action_diff = max(action_diff, float((eager.act(obs, z) - graphed.act(obs, z)).abs().max()))
+    with torch.no_grad():
+        weights = max(float((p - q).abs().max() / p.abs().max().clamp_min(1e-12))
+                      for p, q in zip(eager.model.parameters(), graphed.model.parameters()))
+    step = graphed._step
+    state = ("eager (not CUDA)" if not graphed.graphed else "captured" if step.captured
+             else f"NOT captured: {step.failure}")
+    verdict = "agree" if max(metric_diff, action_diff, weights) < AGREE else "DIFFER"
+    return (f"{preset}: {state}; {verdict}; after {updates} updates: metrics max rel diff {metric_diff:.2e}, "
+            f"actions max abs diff {action_diff:.2e}, weights max rel diff {weights:.2e}")
 
 
 def count_flops(preset: str) -> float:
@@ -155,12 +193,17 @@ def main() -> None:
                     "after the eager ones: compiling takes minutes)")
     ap.add_argument("--bf16", action="store_true", help="also time the bf16-autocast switch (agent.bf16)")
     ap.add_argument("--near", action="store_true", help="also time the NEAR regulariser (agent.regulariser: near)")
+    ap.add_argument("--graph", action="store_true", help="also check and time the update captured in a CUDA graph "
+                    "(agent.cuda_graph; GPU rows)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     devices = ["cpu"] + (["cuda"] if args.gpu and torch.cuda.is_available() else [])
     print(f"torch {torch.__version__}, {args.threads} CPU threads" + (f", {torch.cuda.get_device_name()}" if "cuda" in devices else ""))
     print(f"{'size':8s} {'device':14s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} {'ratio':>6s} "
           f"{'straightforward ms':>19s}")
+    if args.graph and "cuda" in devices:
+        for preset in args.sizes:
+            print("agreement", graph_agreement(preset), flush=True)
     for preset in args.sizes:
         flops = count_flops(preset)
         for dev in devices:
@@ -169,11 +212,14 @@ def main() -> None:
             naive = time_straightforward(*make(preset, "cpu", False), reps) * 1e3 if dev == "cpu" else float("nan")
             eager = [(False, False, "discriminator")] + [(True, False, "discriminator")] * args.bf16
             compiled = [(bf16, True, reg) for bf16, _, reg in eager] if args.compile and dev != "cpu" else []
-            variants = eager + [(False, False, "near")] * args.near + compiled
-            for bf16, compile_, regulariser in variants:
-                agent, batch, windows = make(preset, dev, compile_, bf16, regulariser)
+            variants = [(bf16, comp, reg, False) for bf16, comp, reg in
+                        eager + [(False, False, "near")] * args.near + compiled]
+            variants += [(bf16, False, "discriminator", True) for bf16, _, _ in eager] if args.graph and dev != "cpu" else []
+            for bf16, compile_, regulariser, graph in variants:
+                agent, batch, windows = make(preset, dev, compile_, bf16, regulariser, graph)
                 t = time_update(agent, batch, windows, dev, reps)
-                name = dev + ("+bf16" if bf16 else "") + ("+near" if regulariser == "near" else "") + ("+comp" if compile_ else "")
+                name = (dev + ("+bf16" if bf16 else "") + ("+near" if regulariser == "near" else "")
+                        + ("+comp" if compile_ else "") + ("+graph" if graph else ""))
                 print(f"{preset:8s} {name:14s} {SIZES[preset]:5d} {flops / 1e9:7.1f} {t * 1e3:10.1f} {ref * 1e3:14.1f} "
                       f"{t / ref:6.2f} {naive:19.1f}", flush=True)
 

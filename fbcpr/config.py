@@ -115,6 +115,9 @@ class AgentConfig:
     z_online: float = _f(0.2, PROB)
     z_uniform: float = _f(0.2, PROB)
     compile: bool = _f(False)
+    # not in the paper: on CUDA, capture the whole update (losses, backward, Adam steps, Polyak) in one CUDA graph
+    # and replay it, so ~300 kernels cost one launch (`fbcpr.cuda_graph`); ignored on the CPU
+    cuda_graph: bool = _f(False)
     bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
     # not in the paper: what the critic's reward comes from, the discriminator's log-ratio or a z-conditioned NEAR
     # energy (`fbcpr.near.conditional`, configured by `near:`; experimental)
@@ -130,6 +133,12 @@ class AgentConfig:
                               f"{prefix}.freeze_backward: true and {prefix}.anchor_actor > 0")
         if len(set(self.anchor_rewards)) != len(self.anchor_rewards):
             raise ConfigError(f"{prefix}.anchor_rewards: a task is given twice in {self.anchor_rewards}")
+        if self.cuda_graph and self.compile:
+            raise ConfigError(f"{prefix}.cuda_graph: choose one of cuda_graph and compile (torch.compile cannot "
+                              "differentiate the gradient penalty twice, and a graph already removes the launches)")
+        if self.cuda_graph and self.regulariser != "discriminator":
+            raise ConfigError(f"{prefix}.cuda_graph: needs regulariser: discriminator (the NEAR regulariser's "
+                              f"annealing decides between updates on the CPU), got {self.regulariser!r}")
 
 
 @dataclass

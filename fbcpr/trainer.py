@@ -155,6 +155,10 @@ class Trainer:
             self.agent.bf16 = agree_on_bf16(self.agent.bf16, r)
             self._notice(f"agent.bf16: auto chose {'bf16' if self.agent.bf16 else 'float32'} on {self.device.type} "
                          "(bf16 where its timed matmul is faster, fbcpr.precision)")
+        if getattr(cfg.agent, "cuda_graph", False):  # a speed switch that does nothing off CUDA: say so
+            self._notice("agent.cuda_graph: " + ("the update is captured in a CUDA graph after 3 eager updates (a "
+                         "capture that fails warns and runs eagerly)" if self.device.type == "cuda" else
+                         f"ignored on {self.device.type}"))
         self.next_priority = tc.priority_every or math.inf
         self.next_eval = 0 if tc.eval_at_start and tc.eval_every else (tc.eval_every or math.inf)
         self.next_ckpt = tc.checkpoint_every or math.inf

@@ -407,3 +407,12 @@ def test_ranks_take_bf16_only_where_every_rank_chose_it():
         two.sum = lambda values, other=other: values + other   # the other rank's choice, as all_reduce adds it
         assert agree_on_bf16(mine, two) is agreed
     assert agree_on_bf16(True, Replicas()) is True and agree_on_bf16(False, Replicas()) is False   # one process
+
+
+def test_cuda_graph_on_the_cpu_is_said_to_be_ignored(tmp_path):
+    from dataclasses import replace
+
+    cfg = tiny_cfg()
+    tr = Trainer(replace(cfg, agent=replace(cfg.agent, cuda_graph=True)), tmp_path / "run", progress=False)
+    assert not tr.agent.graphed
+    assert "agent.cuda_graph: ignored on cpu" in (tmp_path / "run" / "warnings.txt").read_text()

@@ -6,7 +6,8 @@
 # Env: FBCPR_DEVICE (cuda), FBCPR_STEPS (override train.total_env_steps), FBCPR_INIT_FROM (a checkpoint to
 #      warm-start from: `pretrained` continues the shipped model), FBCPR_SEEDS (e.g. "0 1 2": one trainer per
 #      training seed, at most 3, sharing the GPU and splitting the cores; run dirs RUN_DIR-s<seed>, listed in
-#      RUN_DIR.runs for device_wait.sh), FBCPR_SETUP_ONLY=1 (install and check only), WHEELS (.whl),
+#      RUN_DIR.runs for device_wait.sh), FBCPR_CUDA_GRAPH=1 (agent.cuda_graph: the update captured in a CUDA
+#      graph), FBCPR_SETUP_ONLY=1 (install and check only), WHEELS (.whl),
 #      WATCH_SECONDS (180: how long to watch the start), PYTHON (python3).
 set -euo pipefail
 CONFIG=${1:?usage: device_train.sh CONFIG RUN_DIR}
@@ -99,17 +100,23 @@ printf '%s\n' "${RUNS[@]}" > "$RUN.runs"  # for device_wait.sh
 for i in "${!RUNS[@]}"; do
   r=${RUNS[$i]}
   cfg=$CONFIG
-  if [ "${#SEEDS[@]}" -gt 0 ]; then
-    # the config with this run's seed and an equal share of the cores, beside it so that its relative paths hold
-    cfg="$(dirname "$CONFIG")/.$(basename "$CONFIG" .yaml)-s${SEEDS[$i]}.yaml"
-    "$VPY" - "$CONFIG" "$cfg" "${SEEDS[$i]}" "${#SEEDS[@]}" << 'EOF'
+  seed=${SEEDS[$i]:-}
+  if [ -n "$seed" ] || [ -n "${FBCPR_CUDA_GRAPH:-}" ]; then
+    # the config with this run's seed and an equal share of the cores, and/or the captured update, beside it so
+    # that its relative paths hold
+    cfg="$(dirname "$CONFIG")/.$(basename "$CONFIG" .yaml)${seed:+-s$seed}${FBCPR_CUDA_GRAPH:+-graph}.yaml"
+    "$VPY" - "$CONFIG" "$cfg" "$seed" "${#SEEDS[@]}" "${FBCPR_CUDA_GRAPH:-}" << 'EOF'
 import os, sys, yaml
-src, dst, seed, n = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+src, dst, seed, n, graph = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5]
 cfg = yaml.safe_load(open(src))
-share = max(1, (os.cpu_count() or 1) // n)
-cfg.setdefault("train", {}).update(seed=seed, torch_threads=share, env_threads=share)
+if seed:
+    share = max(1, (os.cpu_count() or 1) // n)
+    cfg.setdefault("train", {}).update(seed=int(seed), torch_threads=share, env_threads=share)
+    print(f"{dst}: train.seed {seed}, {share} torch and {share} MuJoCo threads")
+if graph:
+    cfg.setdefault("agent", {})["cuda_graph"] = True
+    print(f"{dst}: agent.cuda_graph true")
 yaml.safe_dump(cfg, open(dst, "w"), sort_keys=False)
-print(f"{dst}: train.seed {seed}, {share} torch and {share} MuJoCo threads")
 EOF
   fi
   echo "$VPY" > "$r.python"  # for device_wait.sh

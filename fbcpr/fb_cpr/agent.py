@@ -11,6 +11,7 @@ its DSM loss joins the one backward and its anchored energy is the critic's rewa
 A continued run can hold B and the normaliser fixed (`agent.freeze_backward`) and anchor the actor on demonstration
 states (`agent.anchor_actor`, `fbcpr.fb_cpr.anchor`), and on the batch's states under named reward prompts
 (`agent.anchor_rewards`).
+On CUDA, `agent.cuda_graph` captures the whole step (`_train_step`) in one CUDA graph and replays it.
 """
 from __future__ import annotations
 
@@ -21,7 +22,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from fbcpr import distributed
 from fbcpr.config import AgentConfig, Config, ConfigError, ModelConfig
+from fbcpr.cuda_graph import GraphedStep, make_capturable
 from fbcpr.envs import TaskReward
 from fbcpr.fb_cpr import losses
 from fbcpr.fb_cpr.anchor import ActorAnchor, reward_prompts
@@ -70,7 +73,10 @@ class FBCPRAgent:
             self.energy = ConditionalEnergy(model_cfg.obs_dim, model_cfg.z_dim, agent_cfg.near).to(self.device)
             del trained["discriminator"]
             trained["energy"] = (self.energy.energy, agent_cfg.near.lr)
-        self.optimizers = {k: torch.optim.Adam(m.parameters(), lr=lr, betas=(0.9, 0.999), eps=1e-8)
+        # a captured update steps Adam on the device (`fbcpr.cuda_graph`)
+        self.graphed = agent_cfg.cuda_graph and self.device.type == "cuda"
+        self.optimizers = {k: torch.optim.Adam(m.parameters(), lr=lr, betas=(0.9, 0.999), eps=1e-8,
+                                               capturable=self.graphed)
                            for k, (m, lr) in trained.items()}
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(seed)
@@ -82,6 +88,7 @@ class FBCPRAgent:
             self._expert_energy = (torch.compiler.disable(self.energy.expert_terms) if agent_cfg.compile
                                    else self.energy.expert_terms)
         self._compute = torch.compile(self._losses) if agent_cfg.compile else self._losses
+        self._step = GraphedStep(self._train_step, self.device, [self.generator]) if self.graphed else self._train_step
 
     @classmethod
     def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> "FBCPRAgent":
@@ -121,16 +128,16 @@ class FBCPRAgent:
 
         A component whose source is missing (no online states yet, no demonstrations) gives way to uniform."""
         g, dev = self.generator, self.device
-        p = torch.tensor([self.cfg.z_expert if expert_z is not None else 0.0,
-                          self.cfg.z_online if online_b is not None else 0.0], device=dev)
+        p_expert = self.cfg.z_expert if expert_z is not None else 0.0
+        p_online = self.cfg.z_online if online_b is not None else 0.0
         u = torch.rand(n, generator=g, device=dev)
         z = project_sphere(torch.randn(n, self.model.cfg.z_dim, generator=g, device=dev))
         if expert_z is not None:
             idx = torch.randint(expert_z.shape[0], (n,), generator=g, device=dev)
-            z = torch.where((u < p[0])[:, None], expert_z[idx], z)
+            z = torch.where((u < p_expert)[:, None], expert_z[idx], z)
         if online_b is not None:
             idx = torch.randint(online_b.shape[0], (n,), generator=g, device=dev)
-            z = torch.where(((u >= p[0]) & (u < p[0] + p[1]))[:, None], online_b[idx], z)
+            z = torch.where(((u >= p_expert) & (u < p_expert + p_online))[:, None], online_b[idx], z)
         return z
 
     def relabel(self, z: Tensor, online_b: Tensor, expert_z: Tensor | None) -> Tensor:
@@ -149,14 +156,12 @@ class FBCPRAgent:
     def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, float]:
         """One gradient step on all networks. batch: obs, action, next_obs, z, terminated (n rows);
         expert_windows: (n / seq_length, seq_length, obs_dim) raw observations from the motion data."""
-        out = self.backward(batch, expert_windows)
-        for opt in self.optimizers.values():
-            opt.step()
-        self.soft_update()
+        if self.graphed and distributed.active() is not None:
+            raise ConfigError("agent.cuda_graph: not under torchrun (the ranks average gradients between backward and "
+                              "step, outside any graph); set agent.cuda_graph: false")
+        out = self._step(self._inputs(batch, expert_windows))
         self.num_updates += 1
-        keys = list(out)
-        values = torch.stack([out[k].detach().float() for k in keys]).tolist()
-        metrics = dict(zip(keys, values))
+        metrics = dict(zip(out, torch.stack(list(out.values())).tolist()))
         if self.energy is not None:
             self.energy.step_ema()
             metrics.update(self.energy.end_phase(metrics["energy_expert"]))
@@ -165,17 +170,34 @@ class FBCPRAgent:
     def backward(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, Tensor]:
         """The update's losses on one batch, with their gradients left in every optimised network and no step
         taken: what `update` applies, and what benchmarks/bf16_agreement.py compares between precisions."""
+        return self._backward(self._inputs(batch, expert_windows))
+
+    def _inputs(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, Tensor]:
+        """The update's inputs as float32 tensors on the device (a captured update reads copies of these)."""
         dev = self.device
-        obs, action, next_obs, z_buf = (batch[k].to(dev, torch.float32) for k in ("obs", "action", "next_obs", "z"))
-        terminated = batch["terminated"].to(dev, torch.float32).reshape(-1)
-        expert = expert_windows.to(dev, torch.float32)
+        inputs = {k: batch[k].to(dev, torch.float32) for k in ("obs", "action", "next_obs", "z")}
+        inputs["terminated"] = batch["terminated"].to(dev, torch.float32).reshape(-1)
+        inputs["expert"] = expert_windows.to(dev, torch.float32)
+        return inputs
+
+    def _train_step(self, inputs: dict[str, Tensor]) -> dict[str, Tensor]:
+        """Backward, every optimiser's step and Polyak: the part of an update that a CUDA graph captures. Returns
+        the metrics as float32 scalars on the device."""
+        out = self._backward(inputs)
+        for opt in self.optimizers.values():
+            opt.step()
+        self.soft_update()
+        return {k: v.detach().float() for k, v in out.items()}
+
+    def _backward(self, inputs: dict[str, Tensor]) -> dict[str, Tensor]:
+        obs, expert = inputs["obs"], inputs["expert"]
         expert_flat = expert.reshape(-1, expert.shape[-1])
         if not self.cfg.freeze_backward:  # B reads normalised states: a frozen B needs frozen statistics
             self.model.obs_normalizer.update(torch.cat([obs, expert_flat]))
         if self.energy is not None:
             self.energy.step_normalizer.update(expert[:, 1:] - expert[:, :-1])
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
-            out = self._compute(obs, action, next_obs, z_buf, terminated, expert)
+            out = self._compute(*(inputs[k] for k in ("obs", "action", "next_obs", "z", "terminated", "expert")))
         total = out.pop("_total")
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
@@ -318,6 +340,8 @@ class FBCPRAgent:
         try:
             for name, opt in self.optimizers.items():
                 load_optimizer_state(opt, f"optim.{name}", meta["optimizers"][name], tensors)
+                if self.graphed:
+                    make_capturable(opt)
             self.generator.set_state(tensors["agent_generator"])
             self.num_updates = int(meta["num_updates"])
         except (KeyError, ValueError, RuntimeError) as e:

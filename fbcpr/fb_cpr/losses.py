@@ -46,8 +46,11 @@ def implicit_reward(B_next: Tensor, z: Tensor, ridge: float = 1e-6) -> Tensor:
         d = B_next.shape[1]
         cov = B_next.T @ B_next / B_next.shape[0]
         cov = cov + ridge * cov.diagonal().mean() * torch.eye(d, dtype=cov.dtype, device=cov.device)
-        chol = torch.linalg.cholesky(cov)
-        return (B_next * torch.cholesky_solve(z.T, chol).T).sum(-1)
+        # no error check and two triangular solves: a checked factorisation, or a solver that reads its status on
+        # the host, would wait for the device, which a captured update cannot (fbcpr.cuda_graph)
+        chol = torch.linalg.cholesky_ex(cov).L
+        solved = torch.linalg.solve_triangular(chol.mT, torch.linalg.solve_triangular(chol, z.T, upper=False), upper=True)
+        return (B_next * solved.T).sum(-1)
 
 
 def actor_loss(Fz: Tensor, Q: Tensor, alpha: float, coef: float, action: Tensor | None = None,
