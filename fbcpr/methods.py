@@ -59,7 +59,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 
 #: Imitation rewards (`fbcpr.protocols.ImitationReward`) an RL agent can be trained on, by `reward.imitation` name.
 IMITATION_REWARDS: dict[str, str] = {"amp": "fbcpr.amp.reward:AMPReward", "near": "fbcpr.near.reward:NEARReward",
-                                     "virl": "fbcpr.virl.reward:VIRLReward"}
+                                     "virl": "fbcpr.virl.reward:VIRLReward",
+                                     "progress": "fbcpr.progress_reward:ProgressReward"}
 
 
 def get_method(name: str) -> Method:

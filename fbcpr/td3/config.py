@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from fbcpr.amp.config import AMPConfig
 from fbcpr.config import NON_NEGATIVE, POSITIVE, ConfigError, _check, _f
 from fbcpr.near.config import NEARConfig
+from fbcpr.progress_reward import ProgressConfig
 from fbcpr.virl.config import VIRLConfig
 
 
@@ -44,3 +45,4 @@ class TD3Config:
     amp: AMPConfig = field(default_factory=AMPConfig)
     near: NEARConfig = field(default_factory=NEARConfig)
     virl: VIRLConfig = field(default_factory=VIRLConfig)
+    progress: ProgressConfig = field(default_factory=ProgressConfig)
