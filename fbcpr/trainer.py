@@ -157,7 +157,7 @@ class Trainer:
                          "(bf16 where its timed matmul is faster, fbcpr.precision)")
         if getattr(cfg.agent, "cuda_graph", False):  # a speed switch that does nothing off CUDA: say so
             self._notice("agent.cuda_graph: " + ("the update is captured in a CUDA graph after 3 eager updates (a "
-                         "capture that fails warns and runs eagerly)" if self.device.type == "cuda" else
+                         "capture that fails warns and runs eagerly)" if self.agent.graphed else
                          f"ignored on {self.device.type}"))
         self.next_priority = tc.priority_every or math.inf
         self.next_eval = 0 if tc.eval_at_start and tc.eval_every else (tc.eval_every or math.inf)
