@@ -52,8 +52,9 @@ class ReplayBuffer:
     def __len__(self) -> int:
         return self.size
 
-    def add(self, batch: dict[str, np.ndarray]) -> None:
-        """Append k transitions (every field with leading dim k), overwriting the oldest when full.
+    def add(self, batch: dict[str, np.ndarray]) -> np.ndarray:
+        """Append k transitions (every field with leading dim k), overwriting the oldest when full; returns the
+        rows written (for a copy that mirrors them, `fbcpr.device_batches`).
 
         A transition with a NaN or inf in any field (float32 overflow of a huge but finite state included) is
         dropped and counted in `dropped`: one stored inf would break every later update and reward prompt."""
@@ -76,6 +77,7 @@ class ReplayBuffer:
             self.data[name][idx] = arrays[name]
         self.pos = int((self.pos + k) % self.capacity)
         self.size = int(min(self.size + k, self.capacity))
+        return idx
 
     def sample(self, rng: np.random.Generator, n: int, fields: tuple[str, ...] = FIELDS,
                history: int = 0) -> dict[str, torch.Tensor]:

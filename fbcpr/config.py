@@ -184,6 +184,10 @@ class TrainConfig:
     updates_per_rollout: int = _f(50, _range(0, 10**7))
     buffer_capacity: int = _f(5_000_000, _range(1, 10**9))
     buffer_memmap_mb: float = _f(2048.0, NON_NEGATIVE)
+    # also keep the replay buffer's training fields and the motion frames on train.device, and draw every update's
+    # batch there (fbcpr.device_batches): on a GPU the host then neither gathers nor copies batches. Costs the
+    # buffer's fields once more in device memory; not with sequence rewards (agents that read state histories)
+    device_buffer: bool = _f(False)
     z_update_every: int = _f(150, POSITIVE)
     priority_every: int = _f(1_000_000, NON_NEGATIVE)
     priority_max_clips: int = _f(256, _range(1, 10**6))

@@ -29,7 +29,7 @@ from __future__ import annotations
 import hashlib
 import os
 import weakref
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from datetime import timedelta
 from typing import Any
@@ -156,7 +156,7 @@ class Replicas:
             dist.all_reduce(t)
         return t.cpu().numpy()
 
-    def mean_metrics(self, metrics: dict[str, float]) -> dict[str, float]:
+    def mean_metrics(self, metrics: Mapping[str, float]) -> Mapping[str, float]:
         """Metrics averaged over ranks (every rank logs the same keys: they run the same code)."""
         if not self.enabled or not metrics:
             return metrics

@@ -47,9 +47,13 @@ class Method:
         """A fresh model of this method with the sizes of `cfg` (obs_dim and action_dim set)."""
         return _load(self.model_path)(cfg)
 
+    def agent_class(self) -> type:
+        """The agent's class, for what it declares before it exists (the replay fields it trains on: `fields`)."""
+        return _load(self.agent_path)
+
     def agent(self, cfg: Config, bundle: EnvBundle, device: torch.device, seed: int) -> OnlineAgent:
         """The online agent for a run config on an environment."""
-        return _load(self.agent_path).from_config(cfg, bundle, device, seed)
+        return self.agent_class().from_config(cfg, bundle, device, seed)
 
 
 METHODS: dict[str, Method] = {m.name: m for m in (

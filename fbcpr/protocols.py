@@ -19,6 +19,7 @@ A sequence reward (VIRL) also has an int attribute `history` > 0: the agent then
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
@@ -43,8 +44,9 @@ class OnlineAgent(Protocol):
         """Exploration actions (N, action_dim) in [-1, 1] for raw observations and rollout latents."""
         ...
 
-    def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, float]:
-        """One learning step from a replay batch and raw demonstration windows (w, L, obs_dim); returns metrics."""
+    def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> Mapping[str, float]:
+        """One learning step from a replay batch and raw demonstration windows (w, L, obs_dim); returns metrics
+        (a `fbcpr.lazy_metrics.LazyMetrics`, so that the step does not wait for the device)."""
         ...
 
     def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:

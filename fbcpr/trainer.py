@@ -25,7 +25,7 @@ import shutil
 import signal
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -39,6 +39,7 @@ from rich.table import Column
 from rich.text import Text
 
 from fbcpr.buffer import ReplayBuffer, transition_specs
+from fbcpr.device_batches import DeviceBatches
 from fbcpr.checkpoint import (
     REPLAY_FILE,
     CheckpointError,
@@ -149,6 +150,13 @@ class Trainer:
         specs = transition_specs(b.obs_dim, b.action_dim, self.agent.z_dim, b.nq, b.nv)
         mmap = self.out / ("buffer_mmap" if r.is_main else f"buffer_mmap_rank{r.rank}")
         self.buffer = ReplayBuffer(tc.buffer_capacity, specs, mmap if self._memmap_buffer else None, stride=tc.num_envs)
+        self.batches: DeviceBatches | None = None  # train.device_buffer: update batches drawn on the device
+        if tc.device_buffer:
+            if getattr(self.agent, "history", 0):
+                raise ConfigError("train.device_buffer: this agent's reward reads the states before each transition "
+                                  "(a sequence reward), which only the host buffer gives; set it to false")
+            self.batches = DeviceBatches(self.buffer, b.library, self.agent.fields, self.device,
+                                         seed=int(np.random.SeedSequence((seed, 1)).generate_state(1)[0]))
 
         self.env_steps = self.updates = self.episodes = 0
         if getattr(cfg.agent, "bf16", False) == "auto":  # a choice timed on this machine: say which, as it changes speed
@@ -164,7 +172,7 @@ class Trainer:
         self.next_ckpt = tc.checkpoint_every or math.inf
         self.next_log = 0
         self.emd: dict[str, float] = {}
-        self.last_metrics: dict[str, float] = {}
+        self.last_metrics: Mapping[str, float] = {}  # the last update's, read lazily (fbcpr.lazy_metrics)
         self._action_stats = np.zeros(3)  # sum |a|, saturated components, components (policy actions only)
         self._warned: set[str] = set()
         self._stop = False
@@ -282,8 +290,11 @@ class Trainer:
             mag = np.abs(action)
             self._action_stats += (mag.sum(), (mag > SATURATED).sum(), mag.size)
         next_obs, _, terminated, truncated, info = env.step(action)
-        self.buffer.add({"obs": self.obs, "action": action, "next_obs": info["final_obs"], "z": self.z.cpu().numpy(),
-                         "qpos": info["final_qpos"], "qvel": info["final_qvel"], "terminated": terminated})
+        rows = self.buffer.add({"obs": self.obs, "action": action, "next_obs": info["final_obs"],
+                                "z": self.z.cpu().numpy(), "qpos": info["final_qpos"], "qvel": info["final_qvel"],
+                                "terminated": terminated})
+        if self.batches is not None:
+            self.batches.added(rows)
         if hasattr(agent, "observe"):  # agents that track their own progress (NEAR's annealing, in TD3 or FB-CPR)
             agent.observe(torch.as_tensor(self.obs), torch.as_tensor(info["final_obs"]), self.z)
         done = np.asarray(terminated | truncated)
@@ -296,6 +307,8 @@ class Trainer:
     def sample_batch(self) -> tuple[dict[str, Any], torch.Tensor]:
         """One update's draw, as training takes it: a replay batch and expert windows of the motion library."""
         a = self.cfg.agent
+        if self.batches is not None:
+            return self.batches.sample(a.batch_size, a.batch_size // a.seq_length, a.seq_length)
         batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields,
                                    history=getattr(self.agent, "history", 0))  # states before obs: sequence rewards
         windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, a.batch_size // a.seq_length, a.seq_length))
@@ -483,6 +496,8 @@ class Trainer:
                         "priorities": torch.as_tensor(np.asarray(self.bundle.library.priorities, dtype=np.float64))})
         if torch.cuda.is_available():
             tensors["cuda_rng"] = torch.cuda.get_rng_state()
+        if self.batches is not None:
+            tensors["device_batches_generator"] = self.batches.state()
         py_state = random.getstate()
         meta.update({
             "env_steps": self.env_steps, "updates": self.updates, "episodes": episodes, "world_size": r.world_size,
@@ -630,6 +645,8 @@ class Trainer:
             torch.set_rng_state(tensors["torch_rng"])
             if "cuda_rng" in tensors and torch.cuda.is_available():
                 torch.cuda.set_rng_state(tensors["cuda_rng"])
+            if self.batches is not None and "device_batches_generator" in tensors:  # else: a fresh stream
+                self.batches.load_state(tensors["device_batches_generator"])
             self.z = tensors["z"].to(self.device)
             self.z_age = tensors["z_age"].numpy().copy()
             self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(), "qvel": tensors["env_qvel"].numpy()})
@@ -640,6 +657,8 @@ class Trainer:
         replay = ckpt.replay_buffer()
         if replay is not None:
             self.buffer.load_state(*replay)
+            if self.batches is not None:
+                self.batches.reload()
             return
         if self.cfg.train.save_buffer:
             raise CheckpointError(f"{ckpt.path}: train.save_buffer is set but the checkpoint has no replay buffer")
@@ -670,6 +689,8 @@ class Trainer:
         self.rng = np.random.default_rng(int(seeds[1]))
         torch.manual_seed(int(seeds[2]))
         self.agent.generator.manual_seed(int(seeds[2]))
+        if self.batches is not None:
+            self.batches.generator.manual_seed(int(seeds[2]))
         self.obs, _ = self.bundle.env.reset(seed=int(seeds[3]))
         self.z = self._sample_rollout_z(self.cfg.train.num_envs)
         self.z_age = np.zeros(self.cfg.train.num_envs, dtype=np.int64)
@@ -783,11 +804,23 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
     if memmap and buffer > free:
         raise ConfigError(f"train.buffer_capacity: the memory-mapped replay buffer needs {buffer / 2**30:,.1f} GiB "
                           f"on disk, more than the {free / 2**30:,.1f} GiB free at {folder}")
+    # train.device_buffer: the training fields once more, on the device (one copy per rank; on the CPU, in RAM)
+    mirror = DeviceBatches.bytes_needed(tc.buffer_capacity, specs, get_method(cfg.algorithm).agent_class().fields) \
+        if tc.device_buffer else 0
+    if device.type == "cuda" and need + mirror > have:
+        raise ConfigError(f"train.device_buffer: the replay batches' copy needs {mirror / 2**30:,.1f} GiB of "
+                          f"{device.type} memory beside the model's {need / 2**30:,.1f} GiB, more than its "
+                          f"{have / 2**30:,.1f} GiB; lower train.buffer_capacity, or set train.device_buffer: false")
     ram = _memory_bytes(torch.device("cpu"))
-    if not memmap and buffer + (need if device.type == "cpu" else 0) > ram:
+    model_ram = need if device.type == "cpu" else 0
+    if not memmap and buffer + model_ram > ram:
         raise ConfigError(f"train.buffer_capacity: the replay buffer needs {buffer / 2**30:,.1f} GiB of memory, "
                           f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
                           "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
+    if device.type == "cpu" and (0 if memmap else buffer) + model_ram + mirror * copies > ram:
+        raise ConfigError(f"train.device_buffer: its copy of the replay buffer needs {mirror * copies / 2**30:,.1f} GiB "
+                          f"of memory beside the buffer and the model, more than the {ram / 2**30:,.1f} GiB this "
+                          "machine has; on the CPU the copy only costs memory: set it to false")
     # a full disk fails here, in one line, before TensorBoard's writer thread would fail with a long traceback.
     # One checkpoint: weights, two Adam moments and targets (4 copies), the reward sample, the buffer if saved.
     ckpt = params * 16 + tc.reward_buffer_size * (cfg.model.obs_dim + nq + nv) * 4 + (buffer if tc.save_buffer else 0)

@@ -67,6 +67,12 @@ class MotionLibrary:
             paths = [Path(p) for p in source]
         return cls([load_clip(p) for p in paths])
 
+    @property
+    def frames(self) -> np.ndarray:
+        """Every clip's observations, concatenated (clip m's frames begin at row offsets[m]): what a sampler that
+        keeps its own copy of the frames (on a GPU, say) copies."""
+        return self._obs
+
     def __len__(self) -> int:
         return len(self.clips)
 

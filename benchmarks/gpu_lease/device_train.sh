@@ -7,7 +7,8 @@
 #      warm-start from: `pretrained` continues the shipped model), FBCPR_SEEDS (e.g. "0 1 2": one trainer per
 #      training seed, at most 3, sharing the GPU and splitting the cores; run dirs RUN_DIR-s<seed>, listed in
 #      RUN_DIR.runs for device_wait.sh), FBCPR_CUDA_GRAPH=1 (agent.cuda_graph: the update captured in a CUDA
-#      graph), FBCPR_SETUP_ONLY=1 (install and check only), WHEELS (.whl),
+#      graph), FBCPR_HOST_BATCHES=1 (train.device_buffer false: batches drawn on the host, should the device draw
+#      fail), FBCPR_SETUP_ONLY=1 (install and check only), WHEELS (.whl),
 #      WATCH_SECONDS (180: how long to watch the start), PYTHON (python3).
 set -euo pipefail
 CONFIG=${1:?usage: device_train.sh CONFIG RUN_DIR}
@@ -101,13 +102,13 @@ for i in "${!RUNS[@]}"; do
   r=${RUNS[$i]}
   cfg=$CONFIG
   seed=${SEEDS[$i]:-}
-  if [ -n "$seed" ] || [ -n "${FBCPR_CUDA_GRAPH:-}" ]; then
-    # the config with this run's seed and an equal share of the cores, and/or the captured update, beside it so
-    # that its relative paths hold
-    cfg="$(dirname "$CONFIG")/.$(basename "$CONFIG" .yaml)${seed:+-s$seed}${FBCPR_CUDA_GRAPH:+-graph}.yaml"
-    "$VPY" - "$CONFIG" "$cfg" "$seed" "${#SEEDS[@]}" "${FBCPR_CUDA_GRAPH:-}" << 'EOF'
+  if [ -n "$seed" ] || [ -n "${FBCPR_CUDA_GRAPH:-}" ] || [ -n "${FBCPR_HOST_BATCHES:-}" ]; then
+    # the config with this run's seed and an equal share of the cores, and/or the captured update, and/or host
+    # batches, beside it so that its relative paths hold
+    cfg="$(dirname "$CONFIG")/.$(basename "$CONFIG" .yaml)${seed:+-s$seed}${FBCPR_CUDA_GRAPH:+-graph}${FBCPR_HOST_BATCHES:+-host}.yaml"
+    "$VPY" - "$CONFIG" "$cfg" "$seed" "${#SEEDS[@]}" "${FBCPR_CUDA_GRAPH:-}" "${FBCPR_HOST_BATCHES:-}" << 'EOF'
 import os, sys, yaml
-src, dst, seed, n, graph = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5]
+src, dst, seed, n, graph, host = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5], sys.argv[6]
 cfg = yaml.safe_load(open(src))
 if seed:
     share = max(1, (os.cpu_count() or 1) // n)
@@ -116,6 +117,9 @@ if seed:
 if graph:
     cfg.setdefault("agent", {})["cuda_graph"] = True
     print(f"{dst}: agent.cuda_graph true")
+if host:
+    cfg.setdefault("train", {})["device_buffer"] = False
+    print(f"{dst}: train.device_buffer false")
 yaml.safe_dump(cfg, open(dst, "w"), sort_keys=False)
 EOF
   fi

@@ -30,6 +30,7 @@ from fbcpr.fb_cpr import losses
 from fbcpr.fb_cpr.anchor import ActorAnchor, reward_prompts
 from fbcpr.fb_cpr.imitation import discriminator_terms, encode_windows
 from fbcpr.fb_cpr.model import FBCPRModel
+from fbcpr.lazy_metrics import LazyMetrics
 from fbcpr.near.conditional import ConditionalEnergy
 from fbcpr.networks import project_sphere
 from fbcpr.optim_state import load_optimizer_state, optimizer_state
@@ -153,19 +154,20 @@ class FBCPRAgent:
         return encode_windows(self.model, windows_n)
 
     # ------------------------------------------------------------------------------------- update
-    def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, float]:
+    def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> LazyMetrics:
         """One gradient step on all networks. batch: obs, action, next_obs, z, terminated (n rows);
-        expert_windows: (n / seq_length, seq_length, obs_dim) raw observations from the motion data."""
+        expert_windows: (n / seq_length, seq_length, obs_dim) raw observations from the motion data. The metrics
+        stay on the device until read (`fbcpr.lazy_metrics`)."""
         if self.graphed and distributed.active() is not None:
             raise ConfigError("agent.cuda_graph: not under torchrun (the ranks average gradients between backward and "
                               "step, outside any graph); set agent.cuda_graph: false")
         out = self._step(self._inputs(batch, expert_windows))
         self.num_updates += 1
-        metrics = dict(zip(out, torch.stack(list(out.values())).tolist()))
-        if self.energy is not None:
+        extra = None
+        if self.energy is not None:  # NEAR's annealing reads its energy every update (never graphed)
             self.energy.step_ema()
-            metrics.update(self.energy.end_phase(metrics["energy_expert"]))
-        return metrics
+            extra = self.energy.end_phase(float(out["energy_expert"]))
+        return LazyMetrics(out, extra)
 
     def backward(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, Tensor]:
         """The update's losses on one batch, with their gradients left in every optimised network and no step

@@ -17,6 +17,7 @@ from torch import Tensor
 from fbcpr.config import Config, ModelConfig
 from fbcpr.ensemble_td import action_penalty, pessimistic, td_loss
 from fbcpr.envs import TaskReward
+from fbcpr.lazy_metrics import LazyMetrics
 from fbcpr.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.precision import resolve_bf16
 from fbcpr.protocols import ImitationReward
@@ -92,8 +93,9 @@ class TD3Agent:
         return total
 
     # ------------------------------------------------------------------------------------- update
-    def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> dict[str, float]:
-        """One critic and actor step (plus one imitation-reward fitting step when there is one)."""
+    def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> LazyMetrics:
+        """One critic and actor step (plus one imitation-reward fitting step when there is one); the metrics stay
+        on the device until read."""
         cfg, model, dev = self.cfg, self.model, self.device
         metrics = self.imitation.fit(expert_windows, batch) if self.imitation is not None else {}
         reward = self.reward(batch)
@@ -119,8 +121,7 @@ class TD3Agent:
         with torch.no_grad():
             torch._foreach_lerp_(list(self.target_critic.parameters()), list(model.critic.parameters()), cfg.tau)
         self.num_updates += 1
-        values = torch.stack([critic.detach().float(), actor.detach().float(), reward.mean(), q.detach().float().mean()])
-        return {**metrics, **dict(zip(("critic_loss", "actor_loss", "reward", "q"), values.tolist()))}
+        return LazyMetrics({"critic_loss": critic, "actor_loss": actor, "reward": reward.mean(), "q": q.detach().float().mean()}, metrics)
 
     @torch.no_grad()
     def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:

@@ -159,6 +159,11 @@ class DemoLibrary:
         self._obs = np.concatenate(self.clips).astype(np.float32)
         self.priorities = np.ones(len(self.clips))
 
+    @property
+    def frames(self) -> np.ndarray:
+        """Every demonstration's observations, concatenated (demonstration m's begin at row offsets[m])."""
+        return self._obs
+
     def __len__(self) -> int:
         return len(self.clips)
 
