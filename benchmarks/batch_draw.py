@@ -108,7 +108,7 @@ def main() -> None:
             label = "graphed" if graph else "eager"
             print(f"{preset:8s} {n:5d} {label:8s} {'update only':12s} {'':>8s} {alone * 1e3:10.2f} {'1.00':>15s}",
                   flush=True)
-            for name, draw in (("host", host), ("device", on_device)):
+            for name, draw in (("device", on_device), ("host", host)):
                 draw_s = per_update(draw, device, args.updates, args.reps)
                 total = per_update(lambda: agent.update(*draw()), device, args.updates, args.reps)
                 print(f"{preset:8s} {n:5d} {label:8s} {name:12s} {draw_s * 1e3:8.2f} {total * 1e3:10.2f} "
