@@ -39,7 +39,6 @@ from rich.table import Column
 from rich.text import Text
 
 from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.device_batches import DeviceBatches
 from fbcpr.checkpoint import (
     REPLAY_FILE,
     CheckpointError,
@@ -55,6 +54,7 @@ from fbcpr.checkpoint import (
 )
 from fbcpr import distributed
 from fbcpr.config import Config, ConfigError, TrainConfig
+from fbcpr.device_batches import DeviceBatches
 from fbcpr.envs import EnvBundle, inconsistent_rows, make_env, tracking_scores
 from fbcpr.evaluation.metrics import EMDUnavailable
 from fbcpr.methods import get_method

@@ -121,7 +121,8 @@ class TD3Agent:
         with torch.no_grad():
             torch._foreach_lerp_(list(self.target_critic.parameters()), list(model.critic.parameters()), cfg.tau)
         self.num_updates += 1
-        return LazyMetrics({"critic_loss": critic, "actor_loss": actor, "reward": reward.mean(), "q": q.detach().float().mean()}, metrics)
+        return LazyMetrics({"critic_loss": critic, "actor_loss": actor, "reward": reward.mean(),
+                            "q": q.detach().float().mean()}, metrics)
 
     @torch.no_grad()
     def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
