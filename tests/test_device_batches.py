@@ -154,7 +154,7 @@ def test_sequence_rewards_and_a_copy_that_cannot_fit_are_config_errors(tmp_path)
     with pytest.raises(ConfigError, match="^train.device_buffer: .*sequence reward"):
         Trainer(cfg, tmp_path / "virl", progress=False)
     # a capacity whose buffer fits this machine's memory but not a second copy of its training fields
-    cfg = tiny_cfg(buffer_memmap_mb=10**9)
+    cfg = tiny_cfg(buffer_memmap_mb=10**9, save_buffer=False)     # no checkpoint holding the buffer: no disk check
     cfg.model.obs_dim, cfg.model.action_dim = 2, 2
     specs = transition_specs(2, 2, cfg.model.z_dim, 2, 2)
     row, copy_row = ReplayBuffer.bytes_needed(1, specs), DeviceBatches.bytes_needed(1, specs, FIELDS)
