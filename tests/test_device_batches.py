@@ -11,6 +11,8 @@ from fbcpr.config import ConfigError, config_from_dict
 from fbcpr.device_batches import DeviceBatches
 from fbcpr.trainer import Trainer, _memory_bytes, check_memory
 from motions.clip import from_qpos
+from test_fbcpr_trainer import state_of
+from test_fbcpr_trainer import tiny_cfg as trainer_cfg
 from motions.library import MotionLibrary
 
 torch.set_num_threads(1)
@@ -112,19 +114,8 @@ def test_an_empty_buffer_and_unknown_fields_are_errors():
 
 
 def tiny_cfg(**train):
-    return config_from_dict({
-        "model": {"preset": "tiny"},
-        "agent": {"batch_size": 32},
-        "env": {"name": "toy", "max_episode_steps": 30},
-        "train": {"total_env_steps": 100_000, "num_envs": 4, "warmup_steps": 40, "rollout_steps": 20,
-                  "updates_per_rollout": 2, "buffer_capacity": 1000, "z_update_every": 7, "priority_every": 100,
-                  "eval_every": 0, "checkpoint_every": 0, "log_every": 40, "reward_buffer_size": 50,
-                  "save_buffer": True, "torch_threads": 1, "device_buffer": True, **train},
-    })
-
-
-def weights(tr):
-    return {k: v.clone() for k, v in tr.agent.model.state_dict().items()}
+    """The trainer tests' toy run (its exact resume is checked there), drawing its batches on the device."""
+    return trainer_cfg(**{"device_buffer": True, **train})
 
 
 def test_a_run_on_device_batches_trains_and_resumes_bit_for_bit(tmp_path):
@@ -137,12 +128,13 @@ def test_a_run_on_device_batches_trains_and_resumes_bit_for_bit(tmp_path):
     a.run(max_env_steps=80)
     b = Trainer(tiny_cfg(), tmp_path / "b", resume=True, progress=False)
     b.run(max_env_steps=80)
-    wa, wb = weights(a), weights(b)
+    wa, wb = state_of(a), state_of(b)
+    assert wa.keys() == wb.keys()
     assert not [k for k in wa if not torch.equal(wa[k], wb[k])]
     # the host draw gives other batches from the same start, so the comparison above is not vacuous
     c = Trainer(tiny_cfg(device_buffer=False), tmp_path / "c", progress=False)
     c.run(max_env_steps=200)
-    assert any(not torch.equal(wa[k], v) for k, v in weights(c).items())
+    assert any(not torch.equal(wa[k], v) for k, v in state_of(c).items())
 
 
 def test_sequence_rewards_and_a_copy_that_cannot_fit_are_config_errors(tmp_path):
