@@ -1,0 +1,94 @@
+"""Can this body get up at all? A sampling planner that sees the simulator tracks a getting-up clip.
+
+    python benchmarks/getup_planner.py --clip data/clips/deepmimic/getup_facedown.npz --fractions 0 0.6 0.8 --seeds 0 1
+
+No learnt policy has got up (docs/results.md sections 18-31), and two TD3 probes did not even rise from the clip's
+crouch. This asks whether the physics allows it: `humanoid_env.planner.TrackingPlanner` (predictive sampling over
+the env's own MuJoCo model) tracks the clip from its frame at each fraction, then holds the rest pose, for
+`--steps` control steps. Per start it prints whether the body is up (the pelvis above 0.8 m over the last second,
+as for fall starts), the highest and last pelvis height and the seconds it took. The zero action from the same
+start runs first, as the floor. `--fall-starts N` adds N of the env's fall starts (`FallInit`, seeded by the
+first seed), each tracking the clip from its first frame. `--save DIR` writes each planned motion as a clip (qpos, qvel, obs; the actions
+beside it in `<name>.actions.npy`), physically consistent by construction: replaying the actions in the env
+reproduces it.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from humanoid_env.env import HumanoidEnv
+from humanoid_env.inits import FallInit
+from humanoid_env.model import CONTROL_HZ, NU
+from humanoid_env.planner import PlannerConfig, TrackingPlanner
+from motions.clip import Clip, load_clip, save_clip
+
+UP = 0.8
+
+
+def zero_action_heights(qpos: np.ndarray, qvel: np.ndarray, steps: int) -> np.ndarray:
+    """Pelvis heights (steps + 1,) of the zero action (the rest pose's PD targets) from the state."""
+    env = HumanoidEnv(max_episode_steps=steps + 1)
+    env.reset(options={"qpos": qpos, "qvel": qvel})
+    heights = [qpos[2]]
+    for _ in range(steps):
+        heights.append(env.step(np.zeros(NU))[4]["qpos"][2])
+    return np.array(heights)
+
+
+def summary(heights: np.ndarray) -> str:
+    up = bool((heights[-CONTROL_HZ:] > UP).all())
+    return f"{'UP' if up else 'down':4s} max {heights.max():.2f} last {heights[-1]:.2f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--clip", required=True, help="a clip .npz of getting up (fbcpr motions import)")
+    ap.add_argument("--fractions", type=float, nargs="+", default=[0.0, 0.6, 0.8])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    ap.add_argument("--fall-starts", type=int, default=0, help="fall starts, tracking the clip from its first frame")
+    ap.add_argument("--steps", type=int, default=300, help="control steps per start (30 per second)")
+    ap.add_argument("--samples", type=int, default=PlannerConfig.samples)
+    ap.add_argument("--horizon", type=int, default=PlannerConfig.horizon)
+    ap.add_argument("--noise", type=float, default=PlannerConfig.noise)
+    ap.add_argument("--rate", type=float, default=PlannerConfig.rate)
+    ap.add_argument("--balance", type=float, default=PlannerConfig.w_balance, help="weight of the balance term")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--save", type=Path, help="folder for the planned motions as clips (git-ignored data/ is a fit)")
+    args = ap.parse_args()
+    if any(not 0.0 <= f <= 1.0 for f in args.fractions):
+        ap.error(f"--fractions: each must be in [0, 1], got {args.fractions}")
+    clip = load_clip(args.clip)
+    base = PlannerConfig(samples=args.samples, horizon=args.horizon, noise=args.noise, rate=args.rate,
+                         w_balance=args.balance, threads=args.threads)
+    print(f"{clip.name}: {clip.n_frames} frames; {args.steps} steps per start; planner {base}")
+    frames = [round(f * (clip.n_frames - 1)) for f in args.fractions]
+    starts = [(f"fraction {f:.2f}", i, clip.qpos[i], clip.qvel[i]) for f, i in zip(args.fractions, frames)]
+    if args.fall_starts:
+        fq, fv = FallInit().sample(np.random.default_rng(args.seeds[0]), args.fall_starts)
+        starts += [(f"fall start {i}", 0, fq[i], fv[i]) for i in range(args.fall_starts)]
+    ups = {}
+    for label, frame, q0, v0 in starts:
+        print(f"{label} (frame {frame}, pelvis {q0[2]:.2f} m): zero action "
+              f"{summary(zero_action_heights(q0, v0, args.steps))}", flush=True)
+        for seed in args.seeds:
+            start = time.perf_counter()
+            motion = TrackingPlanner(clip.qpos, replace(base, seed=seed)).run(q0, v0, args.steps, start_frame=frame)
+            h = motion.qpos[:, 2]
+            ups[label] = ups.get(label, 0) + int((h[-CONTROL_HZ:] > UP).all())
+            print(f"  planner seed {seed}: {summary(h)}  ({time.perf_counter() - start:.0f} s)", flush=True)
+            if args.save:
+                name = f"{clip.name}_planned_{label.replace(' ', '_')}_s{seed}"
+                save_clip(Clip(qpos=motion.qpos, qvel=motion.qvel, obs=motion.obs.astype(np.float32), name=name,
+                               source=f"planner tracking {clip.name} ({clip.source})", license=clip.license),
+                          args.save / f"{name}.npz")
+                np.save(args.save / f"{name}.actions.npy", motion.actions)
+    print(f"up, of {len(args.seeds)} seeds: " + ", ".join(f"{k}: {n}" for k, n in ups.items()))
+
+
+if __name__ == "__main__":
+    main()
