@@ -8,9 +8,9 @@ the env's own MuJoCo model) tracks the clip from its frame at each fraction, the
 `--steps` control steps. Per start it prints whether the body is up (the pelvis above 0.8 m over the last second,
 as for fall starts), the highest and last pelvis height and the seconds it took. The zero action from the same
 start runs first, as the floor. `--fall-starts N` adds N of the env's fall starts (`FallInit`, seeded by the
-first seed), each tracking the clip from its first frame. `--save DIR` writes each planned motion as a clip (qpos, qvel, obs; the actions
-beside it in `<name>.actions.npy`), physically consistent by construction: replaying the actions in the env
-reproduces it.
+first seed), each tracking the clip from its first frame. `--save DIR` writes each planned motion as a
+demonstration (`motions.demonstrations`: the clip and the actions that made it, physically consistent by
+construction), which training can take as transitions (`train.demonstrations`).
 """
 from __future__ import annotations
 
@@ -25,7 +25,8 @@ from humanoid_env.env import HumanoidEnv
 from humanoid_env.inits import FallInit
 from humanoid_env.model import CONTROL_HZ, NU
 from humanoid_env.planner import PlannerConfig, TrackingPlanner
-from motions.clip import Clip, load_clip, save_clip
+from motions.clip import Clip, load_clip
+from motions.demonstrations import Demonstration, save_demonstration
 
 UP = 0.8
 
@@ -77,16 +78,16 @@ def main() -> None:
               f"{summary(zero_action_heights(q0, v0, args.steps))}", flush=True)
         for seed in args.seeds:
             start = time.perf_counter()
-            motion = TrackingPlanner(clip.qpos, replace(base, seed=seed)).run(q0, v0, args.steps, start_frame=frame)
+            planner = TrackingPlanner(clip.qpos, replace(base, seed=seed))
+            motion = planner.run(q0, v0, args.steps, start_frame=frame)
             h = motion.qpos[:, 2]
             ups[label] = ups.get(label, 0) + int((h[-CONTROL_HZ:] > UP).all())
             print(f"  planner seed {seed}: {summary(h)}  ({time.perf_counter() - start:.0f} s)", flush=True)
             if args.save:
                 name = f"{clip.name}_planned_{label.replace(' ', '_')}_s{seed}"
-                save_clip(Clip(qpos=motion.qpos, qvel=motion.qvel, obs=motion.obs.astype(np.float32), name=name,
-                               source=f"planner tracking {clip.name} ({clip.source})", license=clip.license),
-                          args.save / f"{name}.npz")
-                np.save(args.save / f"{name}.actions.npy", motion.actions)
+                planned = Clip(qpos=motion.qpos, qvel=motion.qvel, obs=motion.obs.astype(np.float32), name=name,
+                               source=f"planner tracking {clip.name} ({clip.source})", license=clip.license)
+                save_demonstration(Demonstration(planned, motion.actions, planner.amap.mapping), args.save / f"{name}.npz")
     print(f"up, of {len(args.seeds)} seeds: " + ", ".join(f"{k}: {n}" for k, n in ups.items()))
 
 

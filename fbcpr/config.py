@@ -222,6 +222,11 @@ class TrainConfig:
     # a run continued with --init-from: every checkpoint carries the loaded model's reward-inference sample as it
     # is, so that with a frozen B (agent.freeze_backward) reward prompts infer the loaded model's z's
     keep_reward_sample: bool = _f(False)
+    # humanoid: a folder of demonstrations with actions (motions.demonstrations, e.g. the sampling planner's getting
+    # up, benchmarks/getup_planner.py --save) whose transitions go into the replay buffer when a run starts (fresh or
+    # --init-from), each demonstration_copies times: transitions that exploration has not found (section 32)
+    demonstrations: str | None = _f(None)
+    demonstration_copies: int = _f(1, _range(1, 1000))
     torch_threads: int = _f(0, _range(0, 1024))
     # MuJoCo threads of the training envs; 0: all cores, split between the ranks of a torchrun on one machine.
     # Set it when other runs share the machine (several seeds on one leased GPU: benchmarks/gpu_lease)
@@ -448,7 +453,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 #: Config keys that hold a file or folder path, for the envs where they do ("synthetic" names the built-in clips,
 #: and the toy's env.motions names demonstrations, not paths); env None: every env. Sections may be dotted.
 PATH_KEYS = (("env", "motions", "humanoid"), ("env", "npmp", None), ("agent.virl", "multitask", "humanoid"),
-             ("agent.virl", "demo_frames", None))
+             ("agent.virl", "demo_frames", None), ("train", "demonstrations", "humanoid"))
 
 
 def load_config(path: str | Path) -> Config:

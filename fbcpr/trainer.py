@@ -191,6 +191,8 @@ class Trainer:
         self.obs, info = b.env.reset(seed=seed)
         self.z = self._sample_rollout_z(tc.num_envs)
         self.z_age = np.zeros(tc.num_envs, dtype=np.int64)
+        if tc.demonstrations and not resume:  # a resume finds them in its saved buffer, or no longer needs them
+            self._add_demonstrations(Path(tc.demonstrations), tc.demonstration_copies)
         if resume:
             self._resume()
         if r.enabled:
@@ -205,6 +207,36 @@ class Trainer:
         online = self.buffer.sample(self.rng, n, fields=("next_obs",))["next_obs"] if len(self.buffer) > 0 else None
         windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, n, L))
         return self.agent.rollout_z(n, online, windows)
+
+    def _add_demonstrations(self, folder: Path, copies: int) -> None:
+        """train.demonstrations: the folder's transitions, `copies` times, into the replay buffer (and its device copy)."""
+        from motions.demonstrations import DemonstrationError, load_demonstrations, transitions
+
+        cfg = self.cfg
+        if cfg.env.name != "humanoid":
+            raise ConfigError(f"train.demonstrations: demonstrations are humanoid motions, the env is {cfg.env.name!r}")
+        if getattr(self.agent, "history", 0):
+            raise ConfigError("train.demonstrations: this agent reads the states before each transition (a sequence "
+                              "reward), which demonstrations added in one block do not keep")
+        try:
+            demos = load_demonstrations(folder)
+        except DemonstrationError as err:
+            raise ConfigError(f"train.demonstrations: {err}") from None
+        for d in demos:
+            if d.action_mapping != cfg.env.action_mapping:
+                raise ConfigError(f"train.demonstrations: {d.clip.name} was taken under the {d.action_mapping!r} action "
+                                  f"mapping, the env uses {cfg.env.action_mapping!r}")
+        block = transitions(demos)
+        n = len(block["obs"]) * copies
+        if n > cfg.train.buffer_capacity // 2:
+            raise ConfigError(f"train.demonstrations: {n:,} transitions ({copies} copies) would fill over half of "
+                              f"train.buffer_capacity ({cfg.train.buffer_capacity:,})")
+        block = {k: np.concatenate([v] * copies) for k, v in block.items()}
+        block["z"] = self._sample_rollout_z(n).cpu().numpy()
+        rows = self.buffer.add(block)
+        if self.batches is not None:
+            self.batches.added(rows)
+        self._notice(f"train.demonstrations: {len(demos)} demonstrations, {n:,} transitions in the replay buffer")
 
     # --------------------------------------------------------------------------------- main loop
     def run(self, max_env_steps: int | None = None, deadline: float | None = None) -> dict[str, Any]:

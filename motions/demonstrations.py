@@ -1,0 +1,101 @@
+"""Demonstrations with actions: a clip together with the actions that produced it in the env.
+
+A motion clip says where the body went; a demonstration also says how. The sampling planner
+(`humanoid_env.planner`, `benchmarks/getup_planner.py --save`) writes them: its motions are what the env did with
+its actions, so a learner can take them as transitions (`train.demonstrations`), which a clip of mocap cannot give.
+On disk a demonstration is a clip `<name>.npz` and, beside it, `<name>.actions.npz` with the T actions between
+its T + 1 frames and the action mapping they were taken under.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from motions.clip import Clip, ClipFormatError, load_clip, save_clip
+from motions.limits import max_clip_frames
+from motions.npz import read_npz
+
+ACTIONS_SUFFIX = ".actions.npz"
+#: Demonstration files read from one folder at most (each is bounded by the clip length limit).
+MAX_DEMONSTRATIONS = 10_000
+
+
+class DemonstrationError(ClipFormatError):
+    """A demonstration folder or file that cannot be used; the message names it."""
+
+
+@dataclass
+class Demonstration:
+    clip: Clip
+    actions: np.ndarray   # (T, action_dim) in [-1, 1], between the clip's T + 1 frames
+    action_mapping: str
+
+
+def actions_path(clip_path: str | Path) -> Path:
+    """Where the actions of the clip at `clip_path` are kept."""
+    p = Path(clip_path)
+    return p.with_name(p.name.removesuffix(".npz") + ACTIONS_SUFFIX)
+
+
+def save_demonstration(demo: Demonstration, path: str | Path) -> Path:
+    """Write the clip to `path` (.npz) and its actions beside it."""
+    check_actions(demo.actions, demo.clip.n_frames, str(path))
+    out = save_clip(demo.clip, path)
+    np.savez(actions_path(out), actions=demo.actions.astype(np.float32), action_mapping=np.array(demo.action_mapping))
+    return out
+
+
+def check_actions(actions: np.ndarray, n_frames: int, where: str) -> None:
+    """Raise DemonstrationError unless `actions` are (n_frames - 1, A) finite values in [-1, 1]."""
+    if actions.ndim != 2 or len(actions) != n_frames - 1:
+        raise DemonstrationError(f"{where}: actions must have shape ({n_frames - 1}, action_dim) for a clip of "
+                                 f"{n_frames} frames, got {actions.shape}")
+    if not np.isfinite(actions).all():
+        raise DemonstrationError(f"{where}: actions contain NaN or inf")
+    if np.abs(actions).max(initial=0.0) > 1.0:
+        raise DemonstrationError(f"{where}: actions must lie in [-1, 1], found {np.abs(actions).max():.3g}")
+
+
+def load_demonstration(clip_path: str | Path) -> Demonstration:
+    """The clip at `clip_path` and its actions, both checked; errors name the file."""
+    clip = load_clip(clip_path)
+    apath = actions_path(clip_path)
+    if not apath.exists():
+        raise DemonstrationError(f"{apath}: no actions beside the clip {clip_path} (a demonstration needs both)")
+    arrays = read_npz(apath, ("actions", "action_mapping"), DemonstrationError, "actions archive",
+                      max_rows=max_clip_frames())
+    if set(arrays) != {"actions", "action_mapping"}:
+        raise DemonstrationError(f"{apath}: needs members 'actions' and 'action_mapping', found {sorted(arrays)}")
+    mapping = arrays["action_mapping"]
+    if mapping.ndim != 0 or mapping.dtype.kind != "U":
+        raise DemonstrationError(f"{apath}: action_mapping must be a string")
+    actions = arrays["actions"]
+    if actions.dtype.kind != "f":
+        raise DemonstrationError(f"{apath}: actions must be floats, got {actions.dtype}")
+    check_actions(actions, clip.n_frames, str(apath))
+    return Demonstration(clip, actions.astype(np.float32), str(mapping))
+
+
+def load_demonstrations(folder: str | Path) -> list[Demonstration]:
+    """Every demonstration in `folder` (clips with actions beside them), in name order."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DemonstrationError(f"{folder}: no such demonstration folder")
+    clips = sorted(p for p in folder.glob("*.npz") if not p.name.endswith(ACTIONS_SUFFIX))
+    if not clips:
+        raise DemonstrationError(f"{folder}: holds no demonstrations (<name>.npz with <name>{ACTIONS_SUFFIX})")
+    if len(clips) > MAX_DEMONSTRATIONS:
+        raise DemonstrationError(f"{folder}: {len(clips)} clips, over the limit of {MAX_DEMONSTRATIONS}")
+    return [load_demonstration(p) for p in clips]
+
+
+def transitions(demos: list[Demonstration]) -> dict[str, np.ndarray]:
+    """The demonstrations as replay transitions (obs, action, next_obs, and the next state's qpos and qvel, as
+    the trainer stores them); none ends an episode."""
+    def cat(f):
+        return np.concatenate([f(d) for d in demos])
+    return {"obs": cat(lambda d: d.clip.obs[:-1]), "action": cat(lambda d: d.actions),
+            "next_obs": cat(lambda d: d.clip.obs[1:]), "qpos": cat(lambda d: d.clip.qpos[1:]),
+            "qvel": cat(lambda d: d.clip.qvel[1:]), "terminated": np.zeros(sum(len(d.actions) for d in demos), bool)}
