@@ -8,7 +8,7 @@ the env's own MuJoCo model) tracks the clip from its frame at each fraction, the
 `--steps` control steps. Per start it prints whether the body is up (the pelvis above 0.8 m over the last second,
 as for fall starts), the highest and last pelvis height and the seconds it took. The zero action from the same
 start runs first, as the floor. `--fall-starts N` adds N of the env's fall starts (`FallInit`, seeded by the
-first seed), each tracking the clip from its first frame. `--save DIR` writes each planned motion as a
+first seed), each tracking the clip from its first frame. `--save DIR` writes each planned motion that ends up as a
 demonstration (`motions.demonstrations`: the clip and the actions that made it, physically consistent by
 construction), which training can take as transitions (`train.demonstrations`).
 """
@@ -21,14 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from fbcpr.evaluation.upright import got_up
 from humanoid_env.env import HumanoidEnv
 from humanoid_env.inits import FallInit
-from humanoid_env.model import CONTROL_HZ, NU
+from humanoid_env.model import NU
 from humanoid_env.planner import PlannerConfig, TrackingPlanner
 from motions.clip import Clip, load_clip
 from motions.demonstrations import Demonstration, save_demonstration
-
-UP = 0.8
 
 
 def zero_action_heights(qpos: np.ndarray, qvel: np.ndarray, steps: int) -> np.ndarray:
@@ -41,9 +40,13 @@ def zero_action_heights(qpos: np.ndarray, qvel: np.ndarray, steps: int) -> np.nd
     return np.array(heights)
 
 
+def is_up(heights: np.ndarray) -> bool:
+    """Up as a fall start counts it: the pelvis above 0.8 m over the whole last second."""
+    return bool(got_up(heights[:, None])[0])
+
+
 def summary(heights: np.ndarray) -> str:
-    up = bool((heights[-CONTROL_HZ:] > UP).all())
-    return f"{'UP' if up else 'down':4s} max {heights.max():.2f} last {heights[-1]:.2f}"
+    return f"{'UP' if is_up(heights) else 'down':4s} max {heights.max():.2f} last {heights[-1]:.2f}"
 
 
 def main() -> None:
@@ -59,7 +62,7 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=PlannerConfig.rate)
     ap.add_argument("--balance", type=float, default=PlannerConfig.w_balance, help="weight of the balance term")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--save", type=Path, help="folder for the planned motions as clips (git-ignored data/ is a fit)")
+    ap.add_argument("--save", type=Path, help="folder for the motions that end up, as demonstrations (git-ignored data/ fits)")
     args = ap.parse_args()
     if any(not 0.0 <= f <= 1.0 for f in args.fractions):
         ap.error(f"--fractions: each must be in [0, 1], got {args.fractions}")
@@ -81,9 +84,10 @@ def main() -> None:
             planner = TrackingPlanner(clip.qpos, replace(base, seed=seed))
             motion = planner.run(q0, v0, args.steps, start_frame=frame)
             h = motion.qpos[:, 2]
-            ups[label] = ups.get(label, 0) + int((h[-CONTROL_HZ:] > UP).all())
+            up = is_up(h)
+            ups[label] = ups.get(label, 0) + int(up)
             print(f"  planner seed {seed}: {summary(h)}  ({time.perf_counter() - start:.0f} s)", flush=True)
-            if args.save:
+            if args.save and up:
                 name = f"{clip.name}_planned_{label.replace(' ', '_')}_s{seed}"
                 planned = Clip(qpos=motion.qpos, qvel=motion.qvel, obs=motion.obs.astype(np.float32), name=name,
                                source=f"planner tracking {clip.name} ({clip.source})", license=clip.license)
