@@ -224,7 +224,8 @@ class TrainConfig:
     keep_reward_sample: bool = _f(False)
     # humanoid: a folder of demonstrations with actions (motions.demonstrations, e.g. the sampling planner's getting
     # up, benchmarks/getup_planner.py --save) whose transitions go into the replay buffer when a run starts (fresh or
-    # --init-from), each demonstration_copies times: transitions that exploration has not found (section 32)
+    # --init-from), each demonstration_copies times: transitions that exploration has not found. As plain transitions
+    # they made TD3's critic diverge in docs/results.md section 32; no loss here treats them apart
     demonstrations: str | None = _f(None)
     demonstration_copies: int = _f(1, _range(1, 1000))
     torch_threads: int = _f(0, _range(0, 1024))

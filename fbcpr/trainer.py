@@ -218,21 +218,20 @@ class Trainer:
         if getattr(self.agent, "history", 0):
             raise ConfigError("train.demonstrations: this agent reads the states before each transition (a sequence "
                               "reward), which demonstrations added in one block do not keep")
-        try:
-            demos = load_demonstrations(folder)
+        try:  # at most half of the buffer, copies counted
+            demos = load_demonstrations(folder, max_transitions=cfg.train.buffer_capacity // 2 // copies,
+                                        limit_name=f"half of train.buffer_capacity over {copies} demonstration_copies")
         except DemonstrationError as err:
             raise ConfigError(f"train.demonstrations: {err}") from None
         for d in demos:
             if d.action_mapping != cfg.env.action_mapping:
                 raise ConfigError(f"train.demonstrations: {d.clip.name} was taken under the {d.action_mapping!r} action "
                                   f"mapping, the env uses {cfg.env.action_mapping!r}")
-        block = transitions(demos)
-        n = len(block["obs"]) * copies
-        if n > cfg.train.buffer_capacity // 2:
-            raise ConfigError(f"train.demonstrations: {n:,} transitions ({copies} copies) would fill over half of "
-                              f"train.buffer_capacity ({cfg.train.buffer_capacity:,})")
-        block = {k: np.concatenate([v] * copies) for k, v in block.items()}
-        block["z"] = self._sample_rollout_z(n).cpu().numpy()
+        block = {k: np.concatenate([v] * copies) for k, v in transitions(demos).items()}
+        n = len(block["obs"])
+        # one latent per demonstration and copy, as a rollout holds one per episode
+        z = self._sample_rollout_z(len(demos) * copies).cpu().numpy()
+        block["z"] = np.repeat(z, [len(d.actions) for d in demos] * copies, axis=0)
         rows = self.buffer.add(block)
         if self.batches is not None:
             self.batches.added(rows)

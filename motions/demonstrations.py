@@ -78,8 +78,10 @@ def load_demonstration(clip_path: str | Path) -> Demonstration:
     return Demonstration(clip, actions.astype(np.float32), str(mapping))
 
 
-def load_demonstrations(folder: str | Path) -> list[Demonstration]:
-    """Every demonstration in `folder` (clips with actions beside them), in name order."""
+def load_demonstrations(folder: str | Path, max_transitions: int | None = None,
+                        limit_name: str = "max_transitions") -> list[Demonstration]:
+    """Every demonstration in `folder` (clips with actions beside them), in name order; more than
+    `max_transitions` actions in all is an error naming `limit_name`, raised before the rest is read."""
     folder = Path(folder)
     if not folder.is_dir():
         raise DemonstrationError(f"{folder}: no such demonstration folder")
@@ -88,7 +90,13 @@ def load_demonstrations(folder: str | Path) -> list[Demonstration]:
         raise DemonstrationError(f"{folder}: holds no demonstrations (<name>.npz with <name>{ACTIONS_SUFFIX})")
     if len(clips) > MAX_DEMONSTRATIONS:
         raise DemonstrationError(f"{folder}: {len(clips)} clips, over the limit of {MAX_DEMONSTRATIONS}")
-    return [load_demonstration(p) for p in clips]
+    demos, total = [], 0
+    for p in clips:
+        demos.append(load_demonstration(p))
+        total += len(demos[-1].actions)
+        if max_transitions is not None and total > max_transitions:
+            raise DemonstrationError(f"{folder}: over {limit_name} ({max_transitions:,} transitions) by {p.name}")
+    return demos
 
 
 def transitions(demos: list[Demonstration]) -> dict[str, np.ndarray]:

@@ -99,7 +99,8 @@ def test_a_run_starts_with_the_demonstrations_in_its_buffer(tmp_path, two_clips,
 
 def test_demonstrations_that_do_not_fit_the_run_are_config_errors(tmp_path, two_clips, planned):
     save_demonstration(planned, tmp_path / "demos" / "shoved.npz")
-    with pytest.raises(ConfigError, match="over half of train.buffer_capacity"):
+    with pytest.raises(ConfigError, match=r"over half of train.buffer_capacity over 20 demonstration_copies "
+                                          r"\(5 transitions\) by shoved.npz"):
         Trainer(humanoid_cfg(two_clips, tmp_path / "demos", demonstration_copies=20), tmp_path / "a", progress=False)
     mid = humanoid_cfg(two_clips, tmp_path / "demos")
     mid.env.action_mapping = "mid"
