@@ -16,8 +16,6 @@ blends into the rest pose (action 0), which stands on its own.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
-
 import mujoco
 import numpy as np
 from mujoco import rollout
@@ -141,10 +139,9 @@ class TrackingPlanner:
                   + c.w_root_spin * (qvel[..., 3:6] ** 2).sum(-1))
         return (c.w_pose * pose + c.w_height * height + c.w_tilt * tilt + c.w_balance * balance + motion).sum(-1)
 
-    def run(self, qpos: np.ndarray, qvel: np.ndarray, steps: int, start_frame: float = 0.0,
-            on_step: Callable[[int], None] | None = None) -> PlannedMotion:
+    def run(self, qpos: np.ndarray, qvel: np.ndarray, steps: int, start_frame: float = 0.0) -> PlannedMotion:
         """Plan and execute `steps` control steps from the state (qpos, qvel), the reference starting at
-        `start_frame`; `on_step(n)` is told of every n executed steps (a progress bar)."""
+        `start_frame`."""
         if steps < 1:
             raise EnvError(f"planner steps must be >= 1, got {steps}")
         qpos, qvel = check_state(qpos, qvel)
@@ -178,7 +175,5 @@ class TrackingPlanner:
                 qv.append(info["qvel"].copy())
                 ob.append(obs.copy())
             t += len(executed)
-            if on_step is not None:
-                on_step(len(executed))
             correction = np.concatenate([candidates[best, c.execute:], np.repeat(candidates[best, -1:], c.execute, 0)])
         return PlannedMotion(np.array(qp), np.array(qv), np.array(ob), np.array(acts), np.array(costs))
