@@ -33,6 +33,11 @@ class Demonstration:
     action_mapping: str
 
 
+def clip_paths(folder: Path) -> list[Path]:
+    """The clip files of a folder in name order, without the actions files of demonstrations kept there."""
+    return sorted(p for p in folder.glob("*.npz") if not p.name.endswith(ACTIONS_SUFFIX))
+
+
 def actions_path(clip_path: str | Path) -> Path:
     """Where the actions of the clip at `clip_path` are kept."""
     p = Path(clip_path)
@@ -85,7 +90,7 @@ def load_demonstrations(folder: str | Path, max_transitions: int | None = None,
     folder = Path(folder)
     if not folder.is_dir():
         raise DemonstrationError(f"{folder}: no such demonstration folder")
-    clips = sorted(p for p in folder.glob("*.npz") if not p.name.endswith(ACTIONS_SUFFIX))
+    clips = clip_paths(folder)
     if not clips:
         raise DemonstrationError(f"{folder}: holds no demonstrations (<name>.npz with <name>{ACTIONS_SUFFIX})")
     if len(clips) > MAX_DEMONSTRATIONS:

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from motions.clip import Clip, load_clip
+from motions.demonstrations import clip_paths
 
 EMD_CLIP = (0.5, 5.0)
 EMD_BIN_WIDTH = 0.5
@@ -55,12 +56,13 @@ class MotionLibrary:
 
     @classmethod
     def load(cls, source: str | os.PathLike | Iterable[str | os.PathLike]) -> "MotionLibrary":
-        """From a folder of clip `.npz` files (sorted by file name) or an explicit list of files."""
+        """From a folder of clip `.npz` files (sorted by file name; a demonstration folder's actions files are
+        skipped, so its motions serve as clips too) or an explicit list of files."""
         if isinstance(source, (str, os.PathLike)):
             folder = Path(source)
             if not folder.is_dir():
                 raise FileNotFoundError(f"MotionLibrary: {folder} is not a folder of clips")
-            paths = sorted(folder.glob("*.npz"))
+            paths = clip_paths(folder)
             if not paths:
                 raise ValueError(f"MotionLibrary: no .npz clips in {folder}")
         else:

@@ -9,6 +9,7 @@ from fbcpr.trainer import Trainer
 from humanoid_env.model import NU, NV, default_qpos
 from humanoid_env.planner import PlannerConfig, TrackingPlanner
 from motions.clip import Clip
+from motions.library import MotionLibrary
 from motions.demonstrations import (
     ACTIONS_SUFFIX,
     Demonstration,
@@ -39,6 +40,12 @@ def test_a_saved_demonstration_reads_back(tmp_path, planned):
     np.testing.assert_array_equal(back.actions, planned.actions)
     np.testing.assert_allclose(back.clip.qpos, planned.clip.qpos)
     assert back.action_mapping == "rest" and back.clip.name == "shoved"
+
+
+def test_a_demonstration_folder_is_also_a_clip_folder(tmp_path, planned):
+    save_demonstration(planned, tmp_path / "shoved.npz")
+    library = MotionLibrary.load(tmp_path)
+    assert [c.name for c in library.clips] == ["shoved"]
 
 
 def test_bad_demonstrations_are_named(tmp_path, planned):
