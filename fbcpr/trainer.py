@@ -124,8 +124,7 @@ class Trainer:
         random.seed(seed)
         np.random.seed(seed)
         self.rng = np.random.default_rng(seed)
-        if r.enabled:  # parts an agent initialises before seeding (an imitation reward's network) included
-            torch.manual_seed(tc.seed)
+        torch.manual_seed(tc.seed)  # parts an agent initialises before seeding (an imitation reward's network) included
         self.agent = get_method(cfg.algorithm).agent(cfg, b, self.device, tc.seed)  # the same weights on every rank
         if r.enabled:
             torch.manual_seed(seed)

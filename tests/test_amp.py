@@ -43,13 +43,26 @@ def test_fitting_separates_demo_motion_from_standing_still_and_state_round_trips
 
 
 def test_amp_imitates_the_toy_circle_far_better_than_random(tmp_path):
+    """Three seeds and their median: one adversarial run is noisy (dtw/random 0.07-0.34 over 8 seeds at 5k steps)."""
+    ratios = []
+    for seed in range(3):
+        cfg = load_config(CONFIGS / "amp-toy.yaml")
+        cfg.train.total_env_steps, cfg.train.seed = 5000, seed
+        tr = Trainer(cfg, tmp_path / str(seed), progress=False)
+        tr.run()
+        demo = cfg.env.motions
+        learned = imitation_metrics(tr.agent.model.eval(), demo, np.random.default_rng(1))
+        random = imitation_metrics(None, demo, np.random.default_rng(1))
+        ratios.append(learned["dtw"] / random["dtw"])
+        # smoother than random and about as smooth as the demonstration
+        assert abs(learned["sparc"] - learned["sparc_expert"]) < abs(random["sparc"] - random["sparc_expert"])
+    assert np.median(ratios) < 0.5, ratios
+
+
+def test_a_seed_gives_the_same_imitation_reward_network_whatever_ran_before(tmp_path):
+    """The discriminator is built before the agent seeds torch; the trainer seeds first, so a run repeats."""
     cfg = load_config(CONFIGS / "amp-toy.yaml")
-    cfg.train.total_env_steps = 5000
-    tr = Trainer(cfg, tmp_path, progress=False)
-    tr.run()
-    demo = cfg.env.motions
-    learned = imitation_metrics(tr.agent.model.eval(), demo, np.random.default_rng(1))
-    random = imitation_metrics(None, demo, np.random.default_rng(1))
-    assert learned["dtw"] < 0.5 * random["dtw"], (learned, random)
-    # smoother than random and about as smooth as the demonstration
-    assert abs(learned["sparc"] - learned["sparc_expert"]) < abs(random["sparc"] - random["sparc_expert"])
+    first, _ = Trainer(cfg, tmp_path / "a", progress=False).agent.imitation.state()
+    torch.rand(7)  # the global stream moves on
+    second, _ = Trainer(cfg, tmp_path / "b", progress=False).agent.imitation.state()
+    torch.testing.assert_close(first, second, rtol=0, atol=0)
