@@ -225,9 +225,12 @@ class TrainConfig:
     # humanoid: a folder of demonstrations with actions (motions.demonstrations, e.g. the sampling planner's getting
     # up, benchmarks/getup_planner.py --save) whose transitions go into the replay buffer when a run starts (fresh or
     # --init-from), each demonstration_copies times: transitions that exploration has not found. As plain transitions
-    # they made TD3's critic diverge in docs/results.md section 32; no loss here treats them apart
+    # they made TD3's critic diverge in docs/results.md section 32
     demonstrations: str | None = _f(None)
     demonstration_copies: int = _f(1, _range(1, 1000))
+    # > 0: the demonstrations are held apart from the replay buffer (never overwritten) and this share of every
+    # update's batch is drawn from them, marked so that a loss can treat them apart (TD3's agent.bc_weight)
+    demonstration_share: float = _f(0.0, _range(0.0, 0.5))
     torch_threads: int = _f(0, _range(0, 1024))
     # MuJoCo threads of the training envs; 0: all cores, split between the ranks of a torchrun on one machine.
     # Set it when other runs share the machine (several seeds on one leased GPU: benchmarks/gpu_lease)
@@ -386,6 +389,13 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         raise ConfigError("train.keep_best_requires: minimums for the best checkpoint need train.keep_best")
     for key, metric in [("keep_best", tc.keep_best)] + [("keep_best_requires", m) for m in tc.keep_best_requires]:
         _check_logged(tc, key, metric)
+    if tc.demonstration_share and not tc.demonstrations:
+        raise ConfigError("train.demonstration_share: draws from train.demonstrations, which is not set")
+    if tc.demonstration_share and tc.demonstration_copies != 1:
+        raise ConfigError("train.demonstration_copies: copies go into the replay buffer; with "
+                          "train.demonstration_share the demonstrations are held apart (leave it at 1)")
+    if getattr(cfg.agent, "bc_weight", 0.0) and not tc.demonstration_share:
+        raise ConfigError("agent.bc_weight: clones the demonstrations' actions, so it needs train.demonstration_share > 0")
     if cfg.env.npmp is not None and (cfg.algorithm != "td3" or cfg.agent.reward.imitation):
         raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
                           "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")

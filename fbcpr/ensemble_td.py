@@ -33,3 +33,10 @@ def action_penalty(action: Tensor, value_scale: Tensor, coef: float) -> Tensor:
     toward standing. Scaling by the value magnitude keeps `coef` meaningful as Q drifts.
     """
     return coef * value_scale.detach() * action.square().mean()
+
+
+def behaviour_cloning(action: Tensor, target: Tensor, rows: Tensor, value_scale: Tensor, coef: float) -> Tensor:
+    """coef * stopgrad(value_scale) * mean over the marked rows of mean((action - target)^2): TD3+BC's pull of the
+    policy toward demonstrated actions, scaled like `action_penalty` so that the two weights compare."""
+    per_row = (action - target).square().mean(-1)
+    return coef * value_scale.detach() * (per_row * rows).sum() / rows.sum().clamp(min=1)

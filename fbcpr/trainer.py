@@ -190,7 +190,8 @@ class Trainer:
         self.obs, info = b.env.reset(seed=seed)
         self.z = self._sample_rollout_z(tc.num_envs)
         self.z_age = np.zeros(tc.num_envs, dtype=np.int64)
-        if tc.demonstrations and not resume:  # a resume finds them in its saved buffer, or no longer needs them
+        self.demos: dict[str, torch.Tensor] | None = None  # train.demonstration_share: the demonstrations held apart
+        if tc.demonstrations and (not resume or tc.demonstration_share):  # a resume finds copies in its saved buffer
             self._add_demonstrations(Path(tc.demonstrations), tc.demonstration_copies)
         if resume:
             self._resume()
@@ -231,6 +232,12 @@ class Trainer:
         # one latent per demonstration and copy, as a rollout holds one per episode
         z = self._sample_rollout_z(len(demos) * copies).cpu().numpy()
         block["z"] = np.repeat(z, [len(d.actions) for d in demos] * copies, axis=0)
+        if cfg.train.demonstration_share:  # held apart, on the device the batches are drawn on
+            dev = self.batches.device if self.batches is not None else torch.device("cpu")
+            self.demos = {k: torch.as_tensor(block[k], dtype=torch.float32, device=dev) for k in self.agent.fields}
+            self._notice(f"train.demonstrations: {len(demos)} demonstrations, {n:,} transitions held apart, "
+                         f"{cfg.train.demonstration_share:.0%} of every batch")
+            return
         rows = self.buffer.add(block)
         if self.batches is not None:
             self.batches.added(rows)
@@ -338,11 +345,27 @@ class Trainer:
         """One update's draw, as training takes it: a replay batch and expert windows of the motion library."""
         a = self.cfg.agent
         if self.batches is not None:
-            return self.batches.sample(a.batch_size, a.batch_size // a.seq_length, a.seq_length)
-        batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields,
-                                   history=getattr(self.agent, "history", 0))  # states before obs: sequence rewards
-        windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, a.batch_size // a.seq_length, a.seq_length))
+            batch, windows = self.batches.sample(a.batch_size, a.batch_size // a.seq_length, a.seq_length)
+        else:
+            batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields,
+                                       history=getattr(self.agent, "history", 0))  # states before obs: sequence rewards
+            windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, a.batch_size // a.seq_length,
+                                                                         a.seq_length))
+        if self.demos is not None:
+            batch = self._with_demonstrations(batch)
         return batch, windows
+
+    def _with_demonstrations(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """train.demonstration_share: the batch's first rows drawn (with replacement) from the demonstrations held
+        apart, and "demo" marking them."""
+        size = len(batch["obs"])
+        k = round(self.cfg.train.demonstration_share * size)
+        dev = batch["obs"].device
+        idx = torch.as_tensor(self.rng.integers(0, len(self.demos["obs"]), size=k), device=dev)
+        out = {key: torch.cat([self.demos[key][idx].to(value.dtype), value[k:]]) if key in self.demos else value
+               for key, value in batch.items()}
+        out["demo"] = torch.arange(size, device=dev) < k
+        return out
 
     def _update(self) -> None:
         batch, windows = self.sample_batch()

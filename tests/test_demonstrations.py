@@ -115,3 +115,62 @@ def test_demonstrations_that_do_not_fit_the_run_are_config_errors(tmp_path, two_
         Trainer(mid, tmp_path / "b", progress=False)
     with pytest.raises(ConfigError, match="train.demonstrations: .*no such"):
         Trainer(humanoid_cfg(two_clips, tmp_path / "nowhere"), tmp_path / "c", progress=False)
+
+
+def test_demonstrations_held_apart_fill_a_share_of_every_batch(tmp_path, two_clips, planned):
+    save_demonstration(planned, tmp_path / "demos" / "shoved.npz")
+    cfg = humanoid_cfg(two_clips, tmp_path / "demos", demonstration_share=0.25)
+    tr = Trainer(cfg, tmp_path / "run", progress=False)
+    try:
+        assert len(tr.buffer) == 0  # not in the FIFO, where the env's transitions would overwrite them
+        tr.run(max_env_steps=8)
+        batch, _ = tr.sample_batch()
+        assert batch["demo"].tolist() == [True, True] + [False] * 6
+        for row in range(2):  # each marked row is one of the demonstration's transitions, fields aligned
+            (step,) = np.flatnonzero(np.isclose(planned.clip.obs[:-1], batch["obs"][row].numpy(), rtol=1e-6).all(axis=1))
+            np.testing.assert_allclose(batch["action"][row], planned.actions[step], rtol=1e-6)
+            np.testing.assert_allclose(batch["next_obs"][row], planned.clip.obs[step + 1], rtol=1e-6)
+            np.testing.assert_allclose(batch["qvel"][row], planned.clip.qvel[step + 1], rtol=1e-5, atol=1e-5)
+        assert batch["terminated"].dtype == tr.buffer.sample(tr.rng, 1)["terminated"].dtype
+        assert not batch["terminated"][:2].any()
+        online = batch["obs"][2:].numpy()
+        assert not np.isin(online, planned.clip.obs).all(axis=1).any()
+    finally:
+        tr.close()
+
+
+def test_behaviour_cloning_pulls_the_policy_to_the_demonstrated_actions(tmp_path, two_clips, planned):
+    """TD3+BC: on the marked rows the actor moves toward the demonstrations' actions; without the term it does not."""
+    save_demonstration(planned, tmp_path / "demos" / "shoved.npz")
+    errors = {}
+    for weight in (0.0, 5.0):
+        cfg = humanoid_cfg(two_clips, tmp_path / "demos", demonstration_share=0.5)
+        cfg.agent.bc_weight, cfg.agent.lr_actor = weight, 1e-3
+        tr = Trainer(cfg, tmp_path / f"run{weight}", progress=False)
+        try:
+            tr.run(max_env_steps=8)
+            obs = torch.as_tensor(planned.clip.obs[:-1])
+            model = tr.agent.model
+            error = lambda: (model.actor_mean(model.normalize(obs)) - torch.as_tensor(planned.actions)).square().mean()  # noqa: E731
+            before = error().item()
+            for _ in range(150):
+                metrics = tr.agent.update(*tr.sample_batch())
+            errors[weight] = error().item() / before
+            assert ("bc_loss" in metrics) == (weight > 0)
+        finally:
+            tr.close()
+    assert errors[5.0] < 0.5 and errors[5.0] < 0.5 * errors[0.0], errors
+
+
+def test_demonstration_shares_that_cannot_work_are_config_errors(tmp_path, two_clips):
+    base = humanoid_cfg(two_clips, tmp_path / "demos")
+    data = {"algorithm": "td3", "agent": {"reward": {"task": "move-ego-0-0"}}, "env": {"name": "humanoid"}}
+    with pytest.raises(ConfigError, match="train.demonstration_share: draws from train.demonstrations"):
+        config_from_dict({**data, "train": {"demonstration_share": 0.2}})
+    with pytest.raises(ConfigError, match="train.demonstration_copies: copies go into the replay buffer"):
+        config_from_dict({**data, "train": {"demonstrations": "d", "demonstration_share": 0.2, "demonstration_copies": 2}})
+    with pytest.raises(ConfigError, match="agent.bc_weight: .* needs train.demonstration_share"):
+        config_from_dict({**data, "agent": {**data["agent"], "bc_weight": 1.0}, "train": {"demonstrations": "d"}})
+    with pytest.raises(ConfigError, match=r"train.demonstration_share: must be in \[0.0, 0.5\]"):
+        config_from_dict({**data, "train": {"demonstrations": "d", "demonstration_share": 0.9}})
+    assert base.train.demonstration_share == 0.0

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from fbcpr.config import Config, ModelConfig
-from fbcpr.ensemble_td import action_penalty, pessimistic, td_loss
+from fbcpr.ensemble_td import action_penalty, behaviour_cloning, pessimistic, td_loss
 from fbcpr.envs import TaskReward
 from fbcpr.lazy_metrics import LazyMetrics
 from fbcpr.optim_state import load_optimizer_state, optimizer_state
@@ -113,6 +113,11 @@ class TD3Agent:
             a_pi = model.actor_mean(obs_n)
             q_pi = pessimistic(model.q(obs_n, a_pi, detach_params=True), cfg.actor_pessimism)
             actor = -q_pi.mean() + action_penalty(a_pi, q_pi.abs().mean(), cfg.action_penalty)
+            bc = None
+            if cfg.bc_weight:  # the trainer marks the demonstration rows (train.demonstration_share)
+                bc = behaviour_cloning(a_pi, action, batch["demo"].to(dev, torch.float32), q_pi.abs().mean(),
+                                       cfg.bc_weight)
+                actor = actor + bc
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
         (critic + actor).backward()
@@ -121,8 +126,10 @@ class TD3Agent:
         with torch.no_grad():
             torch._foreach_lerp_(list(self.target_critic.parameters()), list(model.critic.parameters()), cfg.tau)
         self.num_updates += 1
-        return LazyMetrics({"critic_loss": critic, "actor_loss": actor, "reward": reward.mean(),
-                            "q": q.detach().float().mean()}, metrics)
+        values = {"critic_loss": critic, "actor_loss": actor, "reward": reward.mean(), "q": q.detach().float().mean()}
+        if bc is not None:
+            values["bc_loss"] = bc
+        return LazyMetrics(values, metrics)
 
     @torch.no_grad()
     def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:

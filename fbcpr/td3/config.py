@@ -40,6 +40,10 @@ class TD3Config:
     critic_pessimism: float = _f(0.0, NON_NEGATIVE)
     actor_pessimism: float = _f(0.0, NON_NEGATIVE)
     action_penalty: float = _f(0.0, NON_NEGATIVE)  # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
+    # TD3+BC (Fujimoto & Gu, 2021) on the batch's demonstration rows (train.demonstration_share): the squared error
+    # to their actions, scaled like action_penalty by the mean |Q|, so the policy's actions where it bootstraps on
+    # demonstrated states stay near those the critic was trained on (section 32's critic diverged without it)
+    bc_weight: float = _f(0.0, NON_NEGATIVE)
     bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
     reward: RewardConfig = field(default_factory=RewardConfig)
     amp: AMPConfig = field(default_factory=AMPConfig)
