@@ -396,6 +396,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
                           "train.demonstration_share the demonstrations are held apart (leave it at 1)")
     if getattr(cfg.agent, "bc_weight", 0.0) and not tc.demonstration_share:
         raise ConfigError("agent.bc_weight: clones the demonstrations' actions, so it needs train.demonstration_share > 0")
+    if getattr(cfg.agent, "bootstrap_demo_actions", False) and not tc.demonstration_share:
+        raise ConfigError("agent.bootstrap_demo_actions: reads the demonstrations' next actions, so it needs "
+                          "train.demonstration_share > 0")
     if cfg.env.npmp is not None and (cfg.algorithm != "td3" or cfg.agent.reward.imitation):
         raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
                           "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")

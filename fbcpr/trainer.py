@@ -235,6 +235,11 @@ class Trainer:
         if cfg.train.demonstration_share:  # held apart, on the device the batches are drawn on
             dev = self.batches.device if self.batches is not None else torch.device("cpu")
             self.demos = {k: torch.as_tensor(block[k], dtype=torch.float32, device=dev) for k in self.agent.fields}
+            # the demonstrator's next action, for a target that bootstraps on it (TD3's agent.bootstrap_demo_actions)
+            nxt = np.concatenate([np.concatenate([d.actions[1:], d.actions[-1:]]) for d in demos])
+            last = np.concatenate([np.arange(len(d.actions)) == len(d.actions) - 1 for d in demos])
+            self.demos["next_action"] = torch.as_tensor(nxt, dtype=torch.float32, device=dev)
+            self.demos["has_next"] = torch.as_tensor(~last, device=dev)
             self._notice(f"train.demonstrations: {len(demos)} demonstrations, {n:,} transitions held apart, "
                          f"{cfg.train.demonstration_share:.0%} of every batch")
             return
@@ -357,7 +362,8 @@ class Trainer:
 
     def _with_demonstrations(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """train.demonstration_share: the batch's first rows drawn (with replacement) from the demonstrations held
-        apart, and "demo" marking them."""
+        apart; "demo" marks them, "demo_next" those whose demonstration goes on, with its next action in
+        "demo_next_action" (zeros elsewhere)."""
         size = len(batch["obs"])
         k = round(self.cfg.train.demonstration_share * size)
         dev = batch["obs"].device
@@ -365,6 +371,10 @@ class Trainer:
         out = {key: torch.cat([self.demos[key][idx].to(value.dtype), value[k:]]) if key in self.demos else value
                for key, value in batch.items()}
         out["demo"] = torch.arange(size, device=dev) < k
+        pad = torch.zeros(size - k, dtype=torch.bool, device=dev)
+        out["demo_next"] = torch.cat([self.demos["has_next"][idx], pad])
+        out["demo_next_action"] = torch.cat([self.demos["next_action"][idx],
+                                             torch.zeros((size - k, self.demos["next_action"].shape[1]), device=dev)])
         return out
 
     def _update(self) -> None:

@@ -131,6 +131,11 @@ def test_demonstrations_held_apart_fill_a_share_of_every_batch(tmp_path, two_cli
             np.testing.assert_allclose(batch["action"][row], planned.actions[step], rtol=1e-6)
             np.testing.assert_allclose(batch["next_obs"][row], planned.clip.obs[step + 1], rtol=1e-6)
             np.testing.assert_allclose(batch["qvel"][row], planned.clip.qvel[step + 1], rtol=1e-5, atol=1e-5)
+            # the demonstrator's next action, where the demonstration goes on
+            assert batch["demo_next"][row] == (step < len(planned.actions) - 1)
+            if step < len(planned.actions) - 1:
+                np.testing.assert_allclose(batch["demo_next_action"][row], planned.actions[step + 1], rtol=1e-6)
+        assert not batch["demo_next"][2:].any() and not batch["demo_next_action"][2:].any()
         assert batch["terminated"].dtype == tr.buffer.sample(tr.rng, 1)["terminated"].dtype
         assert not batch["terminated"][:2].any()
         online = batch["obs"][2:].numpy()
@@ -162,6 +167,28 @@ def test_behaviour_cloning_pulls_the_policy_to_the_demonstrated_actions(tmp_path
     assert errors[5.0] < 0.5 and errors[5.0] < 0.5 * errors[0.0], errors
 
 
+def test_demonstration_rows_can_bootstrap_on_the_demonstrators_next_action(tmp_path, two_clips, planned):
+    """With agent.bootstrap_demo_actions the critic's target reads the batch's demo_next_action on marked rows (two
+    copies of one agent, batches that differ only there, differ in their critic loss); without it, it does not."""
+    import copy
+
+    save_demonstration(planned, tmp_path / "demos" / "shoved.npz")
+    for on in (False, True):
+        cfg = humanoid_cfg(two_clips, tmp_path / "demos", demonstration_share=0.5)
+        cfg.agent.bootstrap_demo_actions = on
+        tr = Trainer(cfg, tmp_path / f"run{on}", progress=False)
+        try:
+            tr.run(max_env_steps=8)
+            batch, windows = tr.sample_batch()
+            assert batch["demo_next"].any()
+            other = dict(batch, demo_next_action=1.0 - batch["demo_next_action"].abs())
+            a, b = copy.deepcopy(tr.agent), copy.deepcopy(tr.agent)
+            losses = a.update(batch, windows)["critic_loss"], b.update(other, windows)["critic_loss"]
+            assert (losses[0] != losses[1]) == on, losses
+        finally:
+            tr.close()
+
+
 def test_demonstration_shares_that_cannot_work_are_config_errors(tmp_path, two_clips):
     base = humanoid_cfg(two_clips, tmp_path / "demos")
     data = {"algorithm": "td3", "agent": {"reward": {"task": "move-ego-0-0"}}, "env": {"name": "humanoid"}}
@@ -171,6 +198,8 @@ def test_demonstration_shares_that_cannot_work_are_config_errors(tmp_path, two_c
         config_from_dict({**data, "train": {"demonstrations": "d", "demonstration_share": 0.2, "demonstration_copies": 2}})
     with pytest.raises(ConfigError, match="agent.bc_weight: .* needs train.demonstration_share"):
         config_from_dict({**data, "agent": {**data["agent"], "bc_weight": 1.0}, "train": {"demonstrations": "d"}})
+    with pytest.raises(ConfigError, match="agent.bootstrap_demo_actions: .* needs train.demonstration_share"):
+        config_from_dict({**data, "agent": {**data["agent"], "bootstrap_demo_actions": True}})
     with pytest.raises(ConfigError, match=r"train.demonstration_share: must be in \[0.0, 0.5\]"):
         config_from_dict({**data, "train": {"demonstrations": "d", "demonstration_share": 0.9}})
     assert base.train.demonstration_share == 0.0

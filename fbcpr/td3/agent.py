@@ -106,6 +106,9 @@ class TD3Agent:
             obs_n, next_n = model.normalize(obs), model.normalize(next_obs)
             with torch.no_grad():
                 a_next = model.actor_sample(next_n, self.generator)
+                if cfg.bootstrap_demo_actions:  # the trainer marks the demonstration rows that go on
+                    a_next = torch.where(batch["demo_next"].to(dev)[:, None],
+                                         batch["demo_next_action"].to(dev, a_next.dtype), a_next)
                 q_next = self.target_critic(torch.cat([next_n, a_next], -1))[..., 0]
                 target = pessimistic(q_next, cfg.critic_pessimism)
             q = model.q(obs_n, action)

@@ -44,6 +44,10 @@ class TD3Config:
     # to their actions, scaled like action_penalty by the mean |Q|, so the policy's actions where it bootstraps on
     # demonstrated states stay near those the critic was trained on (section 32's critic diverged without it)
     bc_weight: float = _f(0.0, NON_NEGATIVE)
+    # the TD target of a demonstration row bootstraps on the demonstrator's next action, not the policy's: a critic
+    # that only saw demonstrated actions there overrates the policy's nearby ones, and its target carried that gap
+    # back along every demonstration, times 1 / (1 - discount) (docs/results.md section 33)
+    bootstrap_demo_actions: bool = _f(False)
     bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
     reward: RewardConfig = field(default_factory=RewardConfig)
     amp: AMPConfig = field(default_factory=AMPConfig)
