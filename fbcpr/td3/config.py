@@ -42,7 +42,8 @@ class TD3Config:
     action_penalty: float = _f(0.0, NON_NEGATIVE)  # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
     # TD3+BC (Fujimoto & Gu, 2021) on the batch's demonstration rows (train.demonstration_share): the squared error
     # to their actions, scaled like action_penalty by the mean |Q|, so the policy's actions where it bootstraps on
-    # demonstrated states stay near those the critic was trained on (section 32's critic diverged without it)
+    # demonstrated states stay near those the critic was trained on (alone it slowed section 32's divergence and did
+    # not stop it: docs/results.md section 33)
     bc_weight: float = _f(0.0, NON_NEGATIVE)
     # the TD target of a demonstration row bootstraps on the demonstrator's next action, not the policy's: a critic
     # that only saw demonstrated actions there overrates the policy's nearby ones, and its target carried that gap
