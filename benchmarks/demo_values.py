@@ -22,6 +22,7 @@ from fbcpr.checkpoint import CheckpointError, load_checkpoint
 from fbcpr.config import Config
 from fbcpr.trainer import Trainer
 
+
 def discounted_returns(reward: np.ndarray, discount: float, tail: int = 20) -> np.ndarray:
     """(demos, T) returns of each step, the mean reward of the last `tail` steps held forever after the end."""
     acc = reward[:, -tail:].mean(1) / (1.0 - discount)
@@ -51,7 +52,7 @@ def main() -> None:
         tr = Trainer(cfg, Path(out), progress=False, init_from=args.checkpoint)
         try:
             model, agent, demos = tr.agent.model.eval(), tr.agent, tr.demos
-            lengths = np.diff(np.flatnonzero(np.r_[True, ~demos["has_next"].numpy()[:-1], True]))
+            lengths = np.diff(np.flatnonzero(np.r_[True, ~demos["demo_next"].numpy()[:-1], True]))
             if len(set(lengths)) != 1:
                 raise SystemExit("the demonstrations differ in length; this reads them as one (demos, T) table")
             shape = (len(lengths), int(lengths[0]))

@@ -235,11 +235,13 @@ class Trainer:
         if cfg.train.demonstration_share:  # held apart, on the device the batches are drawn on
             dev = self.batches.device if self.batches is not None else torch.device("cpu")
             self.demos = {k: torch.as_tensor(block[k], dtype=torch.float32, device=dev) for k in self.agent.fields}
-            # the demonstrator's next action, for a target that bootstraps on it (TD3's agent.bootstrap_demo_actions)
+            # their marks (False and zeros on the replay rows): every row is one, "demo_next" where the demonstration
+            # goes on, with the demonstrator's next action (a target that bootstraps on it: agent.bootstrap_demo_actions)
             nxt = np.concatenate([np.concatenate([d.actions[1:], d.actions[-1:]]) for d in demos])
             last = np.concatenate([np.arange(len(d.actions)) == len(d.actions) - 1 for d in demos])
-            self.demos["next_action"] = torch.as_tensor(nxt, dtype=torch.float32, device=dev)
-            self.demos["has_next"] = torch.as_tensor(~last, device=dev)
+            self.demos["demo"] = torch.ones(n, dtype=torch.bool, device=dev)
+            self.demos["demo_next"] = torch.as_tensor(~last, device=dev)
+            self.demos["demo_next_action"] = torch.as_tensor(nxt, dtype=torch.float32, device=dev)
             self._notice(f"train.demonstrations: {len(demos)} demonstrations, {n:,} transitions held apart, "
                          f"{cfg.train.demonstration_share:.0%} of every batch")
             return
@@ -366,15 +368,11 @@ class Trainer:
         "demo_next_action" (zeros elsewhere)."""
         size = len(batch["obs"])
         k = round(self.cfg.train.demonstration_share * size)
-        dev = batch["obs"].device
-        idx = torch.as_tensor(self.rng.integers(0, len(self.demos["obs"]), size=k), device=dev)
-        out = {key: torch.cat([self.demos[key][idx].to(value.dtype), value[k:]]) if key in self.demos else value
-               for key, value in batch.items()}
-        out["demo"] = torch.arange(size, device=dev) < k
-        pad = torch.zeros(size - k, dtype=torch.bool, device=dev)
-        out["demo_next"] = torch.cat([self.demos["has_next"][idx], pad])
-        out["demo_next_action"] = torch.cat([self.demos["next_action"][idx],
-                                             torch.zeros((size - k, self.demos["next_action"].shape[1]), device=dev)])
+        idx = torch.as_tensor(self.rng.integers(0, len(self.demos["obs"]), size=k), device=batch["obs"].device)
+        out = dict(batch)
+        for key, rows in self.demos.items():
+            rest = batch[key][k:] if key in batch else rows.new_zeros((size - k, *rows.shape[1:]))
+            out[key] = torch.cat([rows[idx].to(rest.dtype), rest])
         return out
 
     def _update(self) -> None:
