@@ -72,9 +72,9 @@ def main() -> None:
     print(f"{clip.name}: {clip.n_frames} frames; {args.steps} steps per start; planner {base}")
     frames = [round(f * (clip.n_frames - 1)) for f in args.fractions]
     starts = [(f"fraction {f:.2f}", i, clip.qpos[i], clip.qvel[i]) for f, i in zip(args.fractions, frames)]
-    if args.fall_starts:
+    if args.fall_starts:  # named with their FallInit seed: runs with other first seeds draw other falls
         fq, fv = FallInit().sample(np.random.default_rng(args.seeds[0]), args.fall_starts)
-        starts += [(f"fall start {i}", 0, fq[i], fv[i]) for i in range(args.fall_starts)]
+        starts += [(f"fall start {i} f{args.seeds[0]}", 0, fq[i], fv[i]) for i in range(args.fall_starts)]
     ups = {}
     for label, frame, q0, v0 in starts:
         print(f"{label} (frame {frame}, pelvis {q0[2]:.2f} m): zero action "

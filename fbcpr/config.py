@@ -153,6 +153,10 @@ class EnvConfig:
     # starts along a skill, e.g. [getup_facedown]: rising from half-way up is reachable by exploration)
     focus_prob: float = _f(0.0, PROB)
     focus_clips: list[str] = _f([])
+    # humanoid: or draw those starts from the frames of other clips, a clip .npz or a folder of them, e.g. the sampling
+    # planner's getting-up demonstrations (motions.demonstrations): states the body really passes through on a rise
+    # that works, velocities included, where a mocap clip's frames are only kinematic
+    focus_motions: str | None = _f(None)
     max_episode_steps: int = _f(300, _range(1, 10**7))
     action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
     # humanoid: truncate a training episode (not terminate: no reward or objective changes) once the pelvis has
@@ -363,11 +367,16 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if cfg.env.fall_prob + cfg.env.stand_prob + cfg.env.focus_prob > 1.0 + 1e-9:
         raise ConfigError(f"env.focus_prob: env.fall_prob + env.stand_prob + env.focus_prob must be <= 1, got "
                           f"{cfg.env.fall_prob} + {cfg.env.stand_prob} + {cfg.env.focus_prob}")
-    if bool(cfg.env.focus_prob) != bool(cfg.env.focus_clips):
-        raise ConfigError("env.focus_clips: give clip names together with env.focus_prob > 0 (one without the other "
-                          f"does nothing), got focus_prob {cfg.env.focus_prob} and focus_clips {cfg.env.focus_clips}")
-    if cfg.env.focus_clips and cfg.env.name != "humanoid":
-        raise ConfigError("env.focus_clips: starts on chosen clips are a humanoid option")
+    if cfg.env.focus_clips and cfg.env.focus_motions:
+        raise ConfigError("env.focus_motions: focus starts come from env.focus_clips or from env.focus_motions, not "
+                          "both")
+    focus_key = "env.focus_motions" if cfg.env.focus_motions else "env.focus_clips"
+    if bool(cfg.env.focus_prob) != bool(cfg.env.focus_clips or cfg.env.focus_motions):
+        raise ConfigError(f"{focus_key}: give focus clips (env.focus_clips or env.focus_motions) together with "
+                          f"env.focus_prob > 0 (one without the other does nothing), got focus_prob "
+                          f"{cfg.env.focus_prob}")
+    if (cfg.env.focus_clips or cfg.env.focus_motions) and cfg.env.name != "humanoid":
+        raise ConfigError(f"{focus_key}: starts on chosen clips are a humanoid option")
     for key in ("fallen_terminates", "reset_fallen_once_up"):
         if getattr(cfg.env, key) and not cfg.env.reset_fallen_s:
             raise ConfigError(f"env.{key}: needs env.reset_fallen_s > 0 (how long fallen ends an episode)")
@@ -466,7 +475,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 #: Config keys that hold a file or folder path, for the envs where they do ("synthetic" names the built-in clips,
 #: and the toy's env.motions names demonstrations, not paths); env None: every env. Sections may be dotted.
-PATH_KEYS = (("env", "motions", "humanoid"), ("env", "npmp", None), ("agent.virl", "multitask", "humanoid"),
+PATH_KEYS = (("env", "motions", "humanoid"), ("env", "focus_motions", None), ("env", "npmp", None), ("agent.virl", "multitask", "humanoid"),
              ("agent.virl", "demo_frames", None), ("train", "demonstrations", "humanoid"))
 
 

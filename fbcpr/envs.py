@@ -128,11 +128,20 @@ def _toy(cfg: EnvConfig, num_envs: int) -> EnvBundle:
 
 
 def _focus_library(cfg: EnvConfig, lib: Any) -> Any:
-    """The clips of env.focus_clips, as a library of their own (each clip equally likely), or None."""
-    if not cfg.focus_clips:
-        return None
+    """The clips of env.focus_clips or env.focus_motions, as a library of their own (each clip equally likely), or
+    None."""
     from motions.library import MotionLibrary
 
+    if cfg.focus_motions:
+        path = Path(cfg.focus_motions)
+        if not path.exists():
+            raise ConfigError(f"env.focus_motions: {path} does not exist (give a clip .npz or a folder of them)")
+        try:
+            return MotionLibrary.load([path] if path.is_file() else path)
+        except ValueError as err:  # ClipFormatError included: the message names the file
+            raise ConfigError(f"env.focus_motions: {err}") from None
+    if not cfg.focus_clips:
+        return None
     unknown = [n for n in cfg.focus_clips if n not in lib.names]
     if unknown:
         raise ConfigError(f"env.focus_clips: {unknown[0]!r} is not a clip of env.motions ({cfg.motions}); its clips "

@@ -120,3 +120,29 @@ def test_focus_clips_start_their_share_of_episodes_on_the_named_clips(tmp_path):
     cfg.focus_clips = ["y", "z"]
     with pytest.raises(ConfigError, match="env.focus_clips: 'z' is not a clip of env.motions"):
         make_env(cfg, 2, 0)
+
+
+def test_focus_motions_start_their_share_of_episodes_on_clips_outside_the_library(tmp_path):
+    from fbcpr.config import ConfigError, EnvConfig, config_from_dict
+    from fbcpr.envs import make_env
+    from motions.demonstrations import Demonstration, save_demonstration
+
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "demos").mkdir()
+    save_clip(_clip("x", 40, 1.0, tag=1), tmp_path / "lib" / "x.npz")
+    demo = _clip("d", 30, 1.0, tag=3)
+    save_demonstration(Demonstration(demo, np.zeros((29, 69), np.float32), "rest"), tmp_path / "demos" / "d.npz")
+    cfg = EnvConfig(name="humanoid", motions=str(tmp_path / "lib"), fall_prob=0.0, stand_prob=0.0, focus_prob=0.5,
+                    focus_motions=str(tmp_path / "demos"))
+    rng = np.random.default_rng(0)
+    qpos, _ = make_env(cfg, 2, 0).env.init.sample(rng, 800)
+    assert 0.42 < (qpos[:, 1] == 3).mean() < 0.58  # the demonstration's frames (its actions file is no clip)
+    assert np.all(np.isin(qpos[:, 1], (1, 3)))
+    assert make_env(cfg, 2, 0).library.names == ["x"]  # the library, its reward and tracking are unchanged
+    cfg.focus_motions = str(tmp_path / "nothing")
+    with pytest.raises(ConfigError, match="env.focus_motions: .*nothing does not exist"):
+        make_env(cfg, 2, 0)
+    with pytest.raises(ConfigError, match="env.focus_motions: .*not both"):
+        config_from_dict({"env": {"focus_prob": 0.5, "focus_clips": ["x"], "focus_motions": str(tmp_path)}})
+    with pytest.raises(ConfigError, match="env.focus_motions: give focus clips"):
+        config_from_dict({"env": {"focus_motions": str(tmp_path)}})
