@@ -475,8 +475,9 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 #: Config keys that hold a file or folder path, for the envs where they do ("synthetic" names the built-in clips,
 #: and the toy's env.motions names demonstrations, not paths); env None: every env. Sections may be dotted.
-PATH_KEYS = (("env", "motions", "humanoid"), ("env", "focus_motions", None), ("env", "npmp", None), ("agent.virl", "multitask", "humanoid"),
-             ("agent.virl", "demo_frames", None), ("train", "demonstrations", "humanoid"))
+PATH_KEYS = (("env", "motions", "humanoid"), ("env", "focus_motions", "humanoid"), ("env", "npmp", None),
+             ("agent.virl", "multitask", "humanoid"), ("agent.virl", "demo_frames", None),
+             ("train", "demonstrations", "humanoid"))
 
 
 def load_config(path: str | Path) -> Config:

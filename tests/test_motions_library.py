@@ -123,7 +123,7 @@ def test_focus_clips_start_their_share_of_episodes_on_the_named_clips(tmp_path):
 
 
 def test_focus_motions_start_their_share_of_episodes_on_clips_outside_the_library(tmp_path):
-    from fbcpr.config import ConfigError, EnvConfig, config_from_dict
+    from fbcpr.config import ConfigError, EnvConfig, config_from_dict, load_config
     from fbcpr.envs import make_env
     from motions.demonstrations import Demonstration, save_demonstration
 
@@ -146,3 +146,5 @@ def test_focus_motions_start_their_share_of_episodes_on_clips_outside_the_librar
         config_from_dict({"env": {"focus_prob": 0.5, "focus_clips": ["x"], "focus_motions": str(tmp_path)}})
     with pytest.raises(ConfigError, match="env.focus_motions: give focus clips"):
         config_from_dict({"env": {"focus_motions": str(tmp_path)}})
+    (tmp_path / "run.yaml").write_text("env:\n  motions: lib\n  focus_prob: 0.5\n  focus_motions: demos\n")
+    assert load_config(tmp_path / "run.yaml").env.focus_motions == str(tmp_path / "demos")  # from the file's folder
