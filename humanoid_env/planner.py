@@ -16,6 +16,8 @@ blends into the rest pose (action 0), which stands on its own.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
+
 import mujoco
 import numpy as np
 from mujoco import rollout
@@ -83,8 +85,9 @@ class PlannedMotion:
     qpos: np.ndarray       # (T+1, 76)
     qvel: np.ndarray       # (T+1, 75)
     obs: np.ndarray        # (T+1, 358)
-    actions: np.ndarray    # (T, 69), in [-1, 1], for the planner's action mapping
+    actions: np.ndarray    # (T, 69), in [-1, 1], for the planner's action mapping: what was executed
     plan_costs: np.ndarray  # (T / execute,) the chosen candidate's cost at each plan
+    labels: np.ndarray     # (T, 69): the planner's own choice at each step; the actions unless a policy acted
 
 
 def up_axis(quat: np.ndarray) -> np.ndarray:
@@ -139,16 +142,19 @@ class TrackingPlanner:
                   + c.w_root_spin * (qvel[..., 3:6] ** 2).sum(-1))
         return (c.w_pose * pose + c.w_height * height + c.w_tilt * tilt + c.w_balance * balance + motion).sum(-1)
 
-    def run(self, qpos: np.ndarray, qvel: np.ndarray, steps: int, start_frame: float = 0.0) -> PlannedMotion:
+    def run(self, qpos: np.ndarray, qvel: np.ndarray, steps: int, start_frame: float = 0.0,
+            policy: Callable[[np.ndarray], np.ndarray] | None = None) -> PlannedMotion:
         """Plan and execute `steps` control steps from the state (qpos, qvel), the reference starting at
-        `start_frame`."""
+        `start_frame`. With a `policy` (observation -> action), the policy acts instead and the planner, replanning
+        every step from the state the policy led to, only labels each state with its own choice (DAgger's expert:
+        labels on the learner's states, where a clone of the planner's motions goes wrong)."""
         if steps < 1:
             raise EnvError(f"planner steps must be >= 1, got {steps}")
         qpos, qvel = check_state(qpos, qvel)
         c, env = self.cfg, self.env
         rng = np.random.default_rng(c.seed)
         obs, info = env.reset(options={"qpos": qpos, "qvel": qvel})
-        qp, qv, ob, acts, costs = [info["qpos"].copy()], [info["qvel"].copy()], [obs.copy()], [], []
+        qp, qv, ob, acts, labels, costs = [info["qpos"].copy()], [info["qvel"].copy()], [obs.copy()], [], [], []
         correction = np.zeros((c.horizon, NU))
         state = np.empty(mujoco.mj_stateSize(env.model, _STATE))
         t = 0
@@ -167,13 +173,26 @@ class TrackingPlanner:
             cost = self.cost(predicted[:, at, 1:1 + NQ], predicted[:, at, 1 + NQ:1 + NQ + NV], sensed[:, at], target)
             best = int(np.argmin(cost))
             costs.append(float(cost[best]))
-            executed = actions[best, :min(c.execute, steps - t)]
-            for a in executed:
+            chosen = actions[best, :1 if policy is not None else min(c.execute, steps - t)]
+            executed = chosen if policy is None else check_action(policy(obs))[None]
+            for a, label in zip(executed, chosen):
                 obs, _, _, _, info = env.step(a)
                 acts.append(a.astype(np.float32))
+                labels.append(label.astype(np.float32))
                 qp.append(info["qpos"].copy())
                 qv.append(info["qvel"].copy())
                 ob.append(obs.copy())
-            t += len(executed)
-            correction = np.concatenate([candidates[best, c.execute:], np.repeat(candidates[best, -1:], c.execute, 0)])
-        return PlannedMotion(np.array(qp), np.array(qv), np.array(ob), np.array(acts), np.array(costs))
+            n = len(executed)
+            t += n
+            correction = np.concatenate([candidates[best, n:], np.repeat(candidates[best, -1:], n, 0)])
+        return PlannedMotion(np.array(qp), np.array(qv), np.array(ob), np.array(acts), np.array(costs),
+                             np.array(labels))
+
+
+def check_action(action: np.ndarray) -> np.ndarray:
+    """A policy's action as (69,) float64 in [-1, 1]; EnvError for a wrong shape or a non-finite value."""
+    a = np.asarray(action, dtype=np.float64).reshape(-1)
+    if a.shape != (NU,) or not np.isfinite(a).all():
+        raise EnvError(f"policy action must be {NU} finite values, got shape {np.shape(action)}"
+                       + ("" if a.shape != (NU,) else " with NaN or inf"))
+    return np.clip(a, -1.0, 1.0)

@@ -31,6 +31,9 @@ class Demonstration:
     clip: Clip
     actions: np.ndarray   # (T, action_dim) in [-1, 1], between the clip's T + 1 frames
     action_mapping: str
+    # (T, action_dim): an expert's actions at the first T frames where someone else acted (a learner's motion
+    # labelled by the planner, DAgger); None where the actions are the expert's own
+    labels: np.ndarray | None = None
 
 
 def clip_paths(folder: Path) -> list[Path]:
@@ -47,8 +50,13 @@ def actions_path(clip_path: str | Path) -> Path:
 def save_demonstration(demo: Demonstration, path: str | Path) -> Path:
     """Write the clip to `path` (.npz) and its actions beside it."""
     check_actions(demo.actions, demo.clip.n_frames, str(path))
+    extra = {}
+    if demo.labels is not None:
+        check_actions(demo.labels, demo.clip.n_frames, f"{path} (labels)")
+        extra["labels"] = demo.labels.astype(np.float32)
     out = save_clip(demo.clip, path)
-    np.savez(actions_path(out), actions=demo.actions.astype(np.float32), action_mapping=np.array(demo.action_mapping))
+    np.savez(actions_path(out), actions=demo.actions.astype(np.float32), action_mapping=np.array(demo.action_mapping),
+             **extra)
     return out
 
 
@@ -69,10 +77,11 @@ def load_demonstration(clip_path: str | Path) -> Demonstration:
     apath = actions_path(clip_path)
     if not apath.exists():
         raise DemonstrationError(f"{apath}: no actions beside the clip {clip_path} (a demonstration needs both)")
-    arrays = read_npz(apath, ("actions", "action_mapping"), DemonstrationError, "actions archive",
+    arrays = read_npz(apath, ("actions", "action_mapping", "labels"), DemonstrationError, "actions archive",
                       max_rows=max_clip_frames())
-    if set(arrays) != {"actions", "action_mapping"}:
-        raise DemonstrationError(f"{apath}: needs members 'actions' and 'action_mapping', found {sorted(arrays)}")
+    if not {"actions", "action_mapping"} <= set(arrays):
+        raise DemonstrationError(f"{apath}: needs members 'actions' and 'action_mapping' (and optionally 'labels'), "
+                                 f"found {sorted(arrays)}")
     mapping = arrays["action_mapping"]
     if mapping.ndim != 0 or mapping.dtype.kind != "U":
         raise DemonstrationError(f"{apath}: action_mapping must be a string")
@@ -80,7 +89,13 @@ def load_demonstration(clip_path: str | Path) -> Demonstration:
     if actions.dtype.kind != "f":
         raise DemonstrationError(f"{apath}: actions must be floats, got {actions.dtype}")
     check_actions(actions, clip.n_frames, str(apath))
-    return Demonstration(clip, actions.astype(np.float32), str(mapping))
+    labels = arrays.get("labels")
+    if labels is not None:
+        if labels.dtype.kind != "f":
+            raise DemonstrationError(f"{apath}: labels must be floats, got {labels.dtype}")
+        check_actions(labels, clip.n_frames, f"{apath} (labels)")
+        labels = labels.astype(np.float32)
+    return Demonstration(clip, actions.astype(np.float32), str(mapping), labels)
 
 
 def load_demonstrations(folder: str | Path, max_transitions: int | None = None,

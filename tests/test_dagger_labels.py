@@ -1,0 +1,68 @@
+"""The planner as DAgger's expert (`TrackingPlanner.run(policy=...)`), labelled demonstrations on disk, and
+benchmarks/dagger_labels.py."""
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from humanoid_env.env import HumanoidEnv
+from humanoid_env.errors import EnvError
+from humanoid_env.model import NU, NV, default_qpos
+from humanoid_env.planner import PlannerConfig, TrackingPlanner
+from motions.demonstrations import Demonstration, DemonstrationError, actions_path, load_demonstration, save_demonstration
+from tests.test_demonstrations import planned  # noqa: F401 (a fixture)
+
+SCRIPT = Path(__file__).parents[1] / "benchmarks" / "dagger_labels.py"
+
+
+def test_with_a_policy_the_policy_acts_and_the_planner_labels_every_state():
+    q0, v0 = default_qpos(), np.zeros(NV)
+    v0[0] = 0.4
+    planner = TrackingPlanner(default_qpos()[None], PlannerConfig(samples=3, horizon=4, knot_every=2))
+    m = planner.run(q0, v0, steps=5, policy=lambda obs: np.full(NU, 0.3))
+    assert m.actions.shape == m.labels.shape == (5, NU)
+    np.testing.assert_allclose(m.actions, 0.3)                 # the policy acted ...
+    assert np.abs(m.labels - 0.3).max() > 0.05                 # ... and the planner chose otherwise
+    assert np.abs(m.labels).max() <= 1.0
+    assert len(m.plan_costs) == 5                              # one plan per step: a label at every state
+    env = HumanoidEnv(action_mapping=planner.amap.mapping)     # the states are the policy's own motion
+    env.reset(options={"qpos": q0, "qvel": v0})
+    for a in m.actions:
+        info = env.step(a)[4]
+    np.testing.assert_allclose(info["qpos"], m.qpos[-1], atol=1e-6)
+    own = planner.run(q0, v0, steps=4)                          # without a policy the labels are the actions
+    np.testing.assert_array_equal(own.labels, own.actions)
+    with pytest.raises(EnvError, match="policy action must be 69 finite values"):
+        planner.run(q0, v0, steps=2, policy=lambda obs: np.zeros(3))
+    with pytest.raises(EnvError, match="NaN or inf"):
+        planner.run(q0, v0, steps=2, policy=lambda obs: np.full(NU, np.nan))
+
+
+def test_labels_are_saved_beside_the_actions_and_checked(tmp_path, planned):  # noqa: F811
+    labels = np.clip(planned.actions + 0.1, -1, 1)
+    save_demonstration(Demonstration(planned.clip, planned.actions, "rest", labels), tmp_path / "d.npz")
+    back = load_demonstration(tmp_path / "d.npz")
+    np.testing.assert_allclose(back.labels, labels, atol=1e-6)
+    save_demonstration(planned, tmp_path / "own.npz")
+    assert load_demonstration(tmp_path / "own.npz").labels is None
+    with pytest.raises(DemonstrationError, match="labels"):
+        save_demonstration(Demonstration(planned.clip, planned.actions, "rest", labels[:-1]), tmp_path / "e.npz")
+    bad = labels.copy()
+    bad[0, 0] = np.nan
+    np.savez(actions_path(tmp_path / "d.npz"), actions=planned.actions, action_mapping=np.array("rest"), labels=bad)
+    with pytest.raises(DemonstrationError, match=r"d\.actions\.npz \(labels\): .*NaN"):
+        load_demonstration(tmp_path / "d.npz")
+
+
+def test_the_script_labels_a_policys_rollouts_and_saves_them(tmp_path, planned):  # noqa: F811
+    save_demonstration(planned, tmp_path / "demos" / "shoved.npz")
+    out = subprocess.run([sys.executable, str(SCRIPT), "zero", "--demos", str(tmp_path / "demos"), "--steps", "3",
+                          "--samples", "3", "--threads", "1", "--out", str(tmp_path / "labelled")],
+                         capture_output=True, text=True, timeout=300, check=True).stdout
+    assert "| shoved | " in out and "mean policy vs label mse over 1 rollouts" in out
+    d = load_demonstration(tmp_path / "labelled" / "shoved_labelled.npz")
+    np.testing.assert_array_equal(d.actions, 0.0)              # the zero policy acted
+    assert d.labels.shape == (3, NU) and np.abs(d.labels).max() > 0.0
+    np.testing.assert_allclose(d.clip.qpos[0], planned.clip.qpos[0])
