@@ -1,4 +1,4 @@
-"""How exactly a rise must be followed: the planner's demonstrations replayed with noise, and policies from their starts.
+"""How exactly a rise must be followed: the planner's motions replayed with noise, and policies from their starts.
 
     python benchmarks/demo_drift.py data/demos/getup-all --noise 0 0.02 0.05 0.08 --agents runs/demostart-s0
 

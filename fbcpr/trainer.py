@@ -227,6 +227,10 @@ class Trainer:
             if d.action_mapping != cfg.env.action_mapping:
                 raise ConfigError(f"train.demonstrations: {d.clip.name} was taken under the {d.action_mapping!r} action "
                                   f"mapping, the env uses {cfg.env.action_mapping!r}")
+            cloned = cfg.train.demonstration_share and getattr(cfg.agent, "bc_weight", 0.0)
+            if d.labels is not None and not cloned:
+                raise ConfigError(f"train.demonstrations: {d.clip.name} carries an expert's labels, which only "
+                                  "behaviour cloning reads: set train.demonstration_share and agent.bc_weight")
         block = {k: np.concatenate([v] * copies) for k, v in transitions(demos).items()}
         n = len(block["obs"])
         # one latent per demonstration and copy, as a rollout holds one per episode
@@ -242,6 +246,10 @@ class Trainer:
             self.demos["demo"] = torch.ones(n, dtype=torch.bool, device=dev)
             self.demos["demo_next"] = torch.as_tensor(~last, device=dev)
             self.demos["demo_next_action"] = torch.as_tensor(nxt, dtype=torch.float32, device=dev)
+            # what behaviour cloning pulls toward: an expert's labels where a rollout carries them (DAgger), else the
+            # demonstrated actions
+            target = np.concatenate([d.actions if d.labels is None else d.labels for d in demos])
+            self.demos["demo_target"] = torch.as_tensor(target, dtype=torch.float32, device=dev)
             self._notice(f"train.demonstrations: {len(demos)} demonstrations, {n:,} transitions held apart, "
                          f"{cfg.train.demonstration_share:.0%} of every batch")
             return
@@ -365,7 +373,7 @@ class Trainer:
     def _with_demonstrations(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """train.demonstration_share: the batch's first rows drawn (with replacement) from the demonstrations held
         apart; "demo" marks them, "demo_next" those whose demonstration goes on, with its next action in
-        "demo_next_action" (zeros elsewhere)."""
+        "demo_next_action", and "demo_target" holds their behaviour-cloning targets (zeros elsewhere)."""
         size = len(batch["obs"])
         k = round(self.cfg.train.demonstration_share * size)
         idx = torch.as_tensor(self.rng.integers(0, len(self.demos["obs"]), size=k), device=batch["obs"].device)

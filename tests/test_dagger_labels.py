@@ -11,7 +11,8 @@ from humanoid_env.env import HumanoidEnv
 from humanoid_env.errors import EnvError
 from humanoid_env.model import NU, NV, default_qpos
 from humanoid_env.planner import PlannerConfig, TrackingPlanner
-from motions.demonstrations import Demonstration, DemonstrationError, actions_path, load_demonstration, save_demonstration
+from motions.demonstrations import (Demonstration, DemonstrationError, actions_path, load_demonstration,
+                                   save_demonstration)
 from tests.test_demonstrations import planned  # noqa: F401 (a fixture)
 
 SCRIPT = Path(__file__).parents[1] / "benchmarks" / "dagger_labels.py"

@@ -203,3 +203,28 @@ def test_demonstration_shares_that_cannot_work_are_config_errors(tmp_path, two_c
     with pytest.raises(ConfigError, match=r"train.demonstration_share: must be in \[0.0, 0.5\]"):
         config_from_dict({**data, "train": {"demonstrations": "d", "demonstration_share": 0.9}})
     assert base.train.demonstration_share == 0.0
+
+
+def test_behaviour_cloning_pulls_toward_an_experts_labels_where_a_rollout_carries_them(tmp_path, two_clips, planned):
+    """DAgger: a labelled rollout's transitions are its own actions, and BC pulls the policy to the labels."""
+    labels = np.clip(0.5 - planned.actions, -1.0, 1.0).astype(np.float32)   # far from the actions
+    save_demonstration(Demonstration(planned.clip, planned.actions, "rest", labels), tmp_path / "demos" / "l.npz")
+    cfg = humanoid_cfg(two_clips, tmp_path / "demos", demonstration_share=0.5)
+    cfg.agent.bc_weight, cfg.agent.lr_actor = 5.0, 1e-3
+    tr = Trainer(cfg, tmp_path / "run", progress=False)
+    try:
+        np.testing.assert_allclose(tr.demos["demo_target"].numpy(), labels)
+        np.testing.assert_allclose(tr.demos["action"].numpy(), planned.actions)
+        tr.run(max_env_steps=8)
+        model = tr.agent.model
+        obs = model.normalize(torch.as_tensor(planned.clip.obs[:-1]))
+        to = lambda target: (model.actor_mean(obs) - torch.as_tensor(target)).square().mean().item()  # noqa: E731
+        before = to(labels)
+        for _ in range(150):
+            tr.agent.update(*tr.sample_batch())
+        assert to(labels) < 0.5 * before and to(labels) < to(planned.actions)
+    finally:
+        tr.close()
+    cfg = humanoid_cfg(two_clips, tmp_path / "demos", demonstration_share=0.5)   # labels without BC: an error
+    with pytest.raises(ConfigError, match="shoved carries an expert's labels, which only behaviour cloning reads"):
+        Trainer(cfg, tmp_path / "run2", progress=False)

@@ -118,8 +118,8 @@ class TD3Agent:
             actor = -q_pi.mean() + action_penalty(a_pi, q_pi.abs().mean(), cfg.action_penalty)
             bc = None
             if cfg.bc_weight:  # the trainer marks the demonstration rows (train.demonstration_share)
-                bc = behaviour_cloning(a_pi, action, batch["demo"].to(dev, torch.float32), q_pi.abs().mean(),
-                                       cfg.bc_weight)
+                bc = behaviour_cloning(a_pi, batch["demo_target"].to(dev, a_pi.dtype),
+                                       batch["demo"].to(dev, torch.float32), q_pi.abs().mean(), cfg.bc_weight)
                 actor = actor + bc
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
