@@ -86,7 +86,7 @@ class PlannedMotion:
     qvel: np.ndarray       # (T+1, 75)
     obs: np.ndarray        # (T+1, 358)
     actions: np.ndarray    # (T, 69), in [-1, 1], for the planner's action mapping: what was executed
-    plan_costs: np.ndarray  # (T / execute,) the chosen candidate's cost at each plan
+    plan_costs: np.ndarray  # the chosen candidate's cost at each plan: T / execute of them, T when a policy acted
     labels: np.ndarray     # (T, 69): the planner's own choice at each step; the actions unless a policy acted
 
 

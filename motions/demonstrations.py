@@ -48,7 +48,7 @@ def actions_path(clip_path: str | Path) -> Path:
 
 
 def save_demonstration(demo: Demonstration, path: str | Path) -> Path:
-    """Write the clip to `path` (.npz) and its actions beside it."""
+    """Write the clip to `path` (.npz) and its actions (and labels, if any) beside it."""
     check_actions(demo.actions, demo.clip.n_frames, str(path))
     extra = {}
     if demo.labels is not None:
