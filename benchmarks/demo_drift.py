@@ -16,7 +16,7 @@ import argparse
 import numpy as np
 
 from fbcpr.evaluation.agents import make_agent
-from fbcpr.evaluation.upright import CONTROL_HZ, STAND_PROMPT, got_up
+from fbcpr.evaluation.upright import CONTROL_HZ, got_up, pelvis_heights
 from humanoid_env.vector import VectorHumanoidEnv
 from motions.demonstrations import Demonstration, DemonstrationError, load_demonstrations
 
@@ -36,28 +36,19 @@ class FirstStates:
         return self.qpos[i].copy(), self.qvel[i].copy()
 
 
-def rollout(demos: list[Demonstration], act, steps: int, threads: int = 1) -> np.ndarray:
-    """Pelvis heights (steps + 1, demos) from the demonstrations' first states; `act(obs, t) -> actions`."""
-    env = VectorHumanoidEnv(len(demos), init=FirstStates(demos), max_episode_steps=steps + 1,
-                            action_mapping=demos[0].action_mapping, num_threads=threads)
-    try:
-        obs, _ = env.reset(seed=0)
-        heights = np.empty((steps + 1, len(demos)))
-        heights[0] = obs[:, 0]
-        for t in range(steps):
-            obs, *_ = env.step(act(obs, t))
-            heights[t + 1] = obs[:, 0]
-    finally:
-        env.close()
-    return heights
-
-
 def noisy_replay(demos: list[Demonstration], sigma: float, steps: int, seed: int = 0, threads: int = 1) -> np.ndarray:
-    """Pelvis heights of each demonstration's own actions plus N(0, sigma²) noise, open loop."""
+    """Pelvis heights (steps, demos) after each step of each demonstration's own actions plus N(0, sigma²) noise,
+    open loop from its first state (agents run through `fbcpr.evaluation.upright.pelvis_heights`, rows alike)."""
     actions = np.stack([d.actions[:steps] for d in demos], axis=1)  # (steps, demos, A)
     noise = np.random.default_rng(seed).normal(0.0, sigma, actions.shape) if sigma else 0.0
     actions = np.clip(actions + noise, -1.0, 1.0).astype(np.float32)
-    return rollout(demos, lambda obs, t: actions[t], steps, threads)
+    env = VectorHumanoidEnv(len(demos), init=FirstStates(demos), max_episode_steps=steps + 1,
+                            action_mapping=demos[0].action_mapping, num_threads=threads)
+    try:
+        env.reset(seed=0)
+        return np.stack([env.step(a)[0][:, 0] for a in actions])
+    finally:
+        env.close()
 
 
 def seconds_on_track(heights: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -81,14 +72,14 @@ def main() -> None:
     except DemonstrationError as err:
         raise SystemExit(str(err)) from None
     steps = min(len(d.actions) for d in demos)
-    reference = np.stack([d.clip.qpos[: steps + 1, 2] for d in demos], axis=1)
+    reference = np.stack([d.clip.qpos[1: steps + 1, 2] for d in demos], axis=1)  # after each step
     print(f"{len(demos)} demonstrations of {args.demos}, {steps} steps from each one's first state; up of "
           f"{len(demos)}, and median seconds with the pelvis within {OFF_TRACK} m of the demonstration's")
     rows = [(f"own actions, noise {s:g}", noisy_replay(demos, s, steps, args.seed, args.threads)) for s in args.noise]
     for spec in ["zero", *args.agents]:
-        agent = make_agent(spec, seed=args.seed)
-        z = np.broadcast_to(agent.reward_z(STAND_PROMPT), (len(demos), agent.z_dim))
-        rows.append((spec, rollout(demos, lambda obs, t: agent.act(obs, z), steps, args.threads)))
+        heights = pelvis_heights(make_agent(spec, seed=args.seed), FirstStates(demos), len(demos), steps, args.seed,
+                                 num_threads=args.threads)
+        rows.append((spec, heights))
     print("| actions | up | on track (s) |\n|---|---:|---:|")
     for name, h in rows:
         print(f"| {name} | {got_up(h).sum()} | {np.median(seconds_on_track(h, reference)):.2f} |", flush=True)

@@ -223,11 +223,11 @@ class Trainer:
                                         limit_name=f"half of train.buffer_capacity over {copies} demonstration_copies")
         except DemonstrationError as err:
             raise ConfigError(f"train.demonstrations: {err}") from None
+        cloned = cfg.train.demonstration_share and getattr(cfg.agent, "bc_weight", 0.0)
         for d in demos:
             if d.action_mapping != cfg.env.action_mapping:
                 raise ConfigError(f"train.demonstrations: {d.clip.name} was taken under the {d.action_mapping!r} action "
                                   f"mapping, the env uses {cfg.env.action_mapping!r}")
-            cloned = cfg.train.demonstration_share and getattr(cfg.agent, "bc_weight", 0.0)
             if d.labels is not None and not cloned:
                 raise ConfigError(f"train.demonstrations: {d.clip.name} carries an expert's labels, which only "
                                   "behaviour cloning reads: set train.demonstration_share and agent.bc_weight")
