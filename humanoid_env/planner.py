@@ -127,6 +127,13 @@ class TrackingPlanner:
         q[:, 7:] = q[:, 7:] * (1 - b) + self.amap.center * b
         return q
 
+    def nearest_frame(self, qpos: np.ndarray) -> int:
+        """The reference frame closest to the pose `qpos` (76,) under the cost's pose, height and tilt terms."""
+        c, ref = self.cfg, self.reference
+        pose = ((ref[:, 7:] - qpos[None, 7:]) ** 2).mean(-1)
+        tilt = 1.0 - (up_axis(ref[:, 3:7]) * up_axis(qpos[None, 3:7])).sum(-1)
+        return int(np.argmin(c.w_pose * pose + c.w_height * (ref[:, 2] - qpos[2]) ** 2 + c.w_tilt * tilt))
+
     def cost(self, qpos: np.ndarray, qvel: np.ndarray, sensed: np.ndarray, target: np.ndarray) -> np.ndarray:
         """(K,) summed cost of K predicted state sequences qpos (K, H, 76), qvel (K, H, 75) and their sensors
         (K, H, 18) against target (H, 76)."""
@@ -147,7 +154,10 @@ class TrackingPlanner:
         """Plan and execute `steps` control steps from the state (qpos, qvel), the reference starting at
         `start_frame`. With a `policy` (observation -> action), the policy acts instead and the planner, replanning
         every step from the state the policy led to, only labels each state with its own choice (DAgger's expert:
-        labels on the learner's states, where a clone of the planner's motions goes wrong)."""
+        labels on the learner's states, where a clone of the planner's motions goes wrong). Each of those plans
+        tracks the reference from its frame nearest the state (`nearest_frame`), not from the step count: a policy
+        still lying at step 60 gets the labels that start a rise, not those of the reference's frame 60, which
+        stands (docs/results.md section 35)."""
         if steps < 1:
             raise EnvError(f"planner steps must be >= 1, got {steps}")
         qpos, qvel = check_state(qpos, qvel)
@@ -159,7 +169,8 @@ class TrackingPlanner:
         state = np.empty(mujoco.mj_stateSize(env.model, _STATE))
         t = 0
         while t < steps:
-            target = self.target(start_frame + c.rate * (t + 1 + np.arange(c.horizon)))
+            phase = start_frame + c.rate * t if policy is None else self.nearest_frame(env.data.qpos)
+            target = self.target(phase + c.rate * (1 + np.arange(c.horizon)))
             feed = self.amap.from_angles(target[:, 7:]).astype(np.float64)
             noise = rng.normal(scale=c.noise, size=(c.samples, self._basis.shape[1], NU))
             noise[0] = 0.0

@@ -41,6 +41,18 @@ def test_with_a_policy_the_policy_acts_and_the_planner_labels_every_state():
         planner.run(q0, v0, steps=2, policy=lambda obs: np.full(NU, np.nan))
 
 
+def test_a_label_tracks_the_reference_from_the_frame_nearest_the_state_not_from_the_step_count():
+    ref = np.repeat(default_qpos()[None], 12, 0)
+    ref[:, 2] = np.linspace(0.55, 0.95, 12)                    # a rise: the pelvis goes up ...
+    ref[:, 7:] = np.linspace(0.6, 0.0, 12)[:, None] * np.sin(np.arange(NU))  # ... and the joints straighten
+    planner = TrackingPlanner(ref, PlannerConfig(samples=3, horizon=4, knot_every=2))
+    assert [planner.nearest_frame(q) for q in ref] == list(range(12))
+    q0, v0 = ref[7], np.zeros(NV)
+    label = planner.run(q0, v0, steps=1, policy=lambda obs: np.zeros(NU)).labels[0]
+    np.testing.assert_allclose(label, planner.run(q0, v0, steps=1, start_frame=7).actions[0], atol=1e-6)
+    assert np.abs(label - planner.run(q0, v0, steps=1, start_frame=0).actions[0]).max() > 0.01
+
+
 def test_labels_are_saved_beside_the_actions_and_checked(tmp_path, planned):  # noqa: F811
     labels = np.clip(planned.actions + 0.1, -1, 1)
     save_demonstration(Demonstration(planned.clip, planned.actions, "rest", labels), tmp_path / "d.npz")
