@@ -35,7 +35,8 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=PlannerConfig.samples)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, help="folder for the labelled rollouts (git-ignored data/ fits)")
+    ap.add_argument("--out", type=Path, help="folder for the labelled rollouts (git-ignored data/ fits); its name "
+                    "ends theirs, so that the rounds of DAgger go in one folder")
     args = ap.parse_args()
     if args.count < 1 or args.steps < 1:
         ap.error(f"--count and --steps must be >= 1, got {args.count} and {args.steps}")
@@ -62,7 +63,7 @@ def main() -> None:
         gaps.append(gap)
         print(f"| {d.clip.name} | {gap:.4f} | {m.qpos[-1, 2]:.2f} | {time.perf_counter() - start:.0f} |", flush=True)
         if args.out:
-            clip = Clip(qpos=m.qpos, qvel=m.qvel, obs=m.obs.astype(np.float32), name=f"{d.clip.name}_labelled",
+            clip = Clip(qpos=m.qpos, qvel=m.qvel, obs=m.obs.astype(np.float32), name=f"{d.clip.name}_{args.out.name}",
                         source=f"{args.agent} from the first state of {d.clip.name}, labelled by the planner",
                         license=d.clip.license)
             save_demonstration(Demonstration(clip, m.actions, mapping, m.labels), args.out / f"{clip.name}.npz")

@@ -72,10 +72,10 @@ def test_labels_are_saved_beside_the_actions_and_checked(tmp_path, planned):  # 
 def test_the_script_labels_a_policys_rollouts_and_saves_them(tmp_path, planned):  # noqa: F811
     save_demonstration(planned, tmp_path / "demos" / "shoved.npz")
     out = subprocess.run([sys.executable, str(SCRIPT), "zero", "--demos", str(tmp_path / "demos"), "--steps", "3",
-                          "--samples", "3", "--threads", "1", "--out", str(tmp_path / "labelled")],
+                          "--samples", "3", "--threads", "1", "--out", str(tmp_path / "round1")],
                          capture_output=True, text=True, timeout=300, check=True).stdout
     assert "| shoved | " in out and "mean policy vs label mse over 1 rollouts" in out
-    d = load_demonstration(tmp_path / "labelled" / "shoved_labelled.npz")
+    d = load_demonstration(tmp_path / "round1" / "shoved_round1.npz")
     np.testing.assert_array_equal(d.actions, 0.0)              # the zero policy acted
     assert d.labels.shape == (3, NU) and np.abs(d.labels).max() > 0.0
     np.testing.assert_allclose(d.clip.qpos[0], planned.clip.qpos[0])
