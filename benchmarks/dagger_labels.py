@@ -34,6 +34,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=60, help="control steps per rollout (30 per second)")
     ap.add_argument("--samples", type=int, default=PlannerConfig.samples)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=PlannerConfig.warm_start,
+                    help="plan from the last label's best sequence; off: a label depends on the state alone")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, help="folder for the labelled rollouts (git-ignored data/ fits); its name "
                     "ends theirs, so that the rounds of DAgger go in one folder")
@@ -50,7 +52,7 @@ def main() -> None:
         raise SystemExit(f"{args.agent} acts under the {mapping!r} action mapping, the demonstrations under "
                          f"{demos[0].action_mapping!r}")
     z = agent.reward_z(STAND_PROMPT)[None]
-    cfg = PlannerConfig(samples=args.samples, threads=args.threads, seed=args.seed)
+    cfg = PlannerConfig(samples=args.samples, threads=args.threads, seed=args.seed, warm_start=args.warm_start)
     print(f"{args.agent} acting from the first states of {len(demos)} demonstrations, {args.steps} steps each; the "
           f"planner ({cfg.samples} samples) labels every state")
     print("| demonstration | policy vs label, mse | pelvis at the end (m) | seconds |\n|---|---:|---:|---:|")

@@ -66,6 +66,8 @@ class PlannerConfig:
     w_balance: float = 0.0         # squared distance (m^2) of the capture point from the feet, while the target stands
     threads: int = 2
     seed: int = 0
+    warm_start: bool = True        # each plan starts from the last one's best sequence; False: from the
+                                   # feed-forward alone, so that a label depends on the state, not on the history
 
     def __post_init__(self) -> None:
         for name in ("samples", "horizon", "execute", "knot_every", "threads"):
@@ -195,7 +197,8 @@ class TrackingPlanner:
                 ob.append(obs.copy())
             n = len(executed)
             t += n
-            correction = np.concatenate([candidates[best, n:], np.repeat(candidates[best, -1:], n, 0)])
+            if c.warm_start:
+                correction = np.concatenate([candidates[best, n:], np.repeat(candidates[best, -1:], n, 0)])
         return PlannedMotion(np.array(qp), np.array(qv), np.array(ob), np.array(acts), np.array(costs),
                              np.array(labels))
 

@@ -53,6 +53,20 @@ def test_a_label_tracks_the_reference_from_the_frame_nearest_the_state_not_from_
     assert np.abs(label - planner.run(q0, v0, steps=1, start_frame=0).actions[0]).max() > 0.01
 
 
+def test_without_warm_start_a_label_is_one_draw_of_noise_from_the_feed_forward_not_a_random_walk():
+    q0, v0 = default_qpos(), np.zeros(NV)
+    v0[0] = 0.4
+    spread = {}
+    for warm in (True, False):
+        cfg = PlannerConfig(samples=8, horizon=8, knot_every=2, threads=1, warm_start=warm)
+        planner = TrackingPlanner(default_qpos()[None], cfg)
+        m = planner.run(q0, v0, steps=48, policy=lambda obs: np.zeros(NU))
+        feed = planner.amap.from_angles(default_qpos()[None, 7:])[0]
+        spread[warm] = np.sqrt(np.square(m.labels[-16:] - feed).mean(1)).mean()
+    assert spread[False] < 0.15                                  # the knot noise's scale, 0.1
+    assert spread[True] > 2 * spread[False]                      # the kept corrections add up
+
+
 def test_labels_are_saved_beside_the_actions_and_checked(tmp_path, planned):  # noqa: F811
     labels = np.clip(planned.actions + 0.1, -1, 1)
     save_demonstration(Demonstration(planned.clip, planned.actions, "rest", labels), tmp_path / "d.npz")
