@@ -69,7 +69,8 @@ def main() -> None:
     obs = np.concatenate([data[p][0] for p in args.train])
     target = np.concatenate([data[p][1] for p in args.train])
     predict = fit(obs, target, args.hidden, args.layers, args.steps, args.seed)
-    print(f"fitted to {len(obs):,} rows of {len(args.train)} folders; {args.steps} steps, {args.layers} x {args.hidden}")
+    print(f"fitted to {len(obs):,} rows of {len(args.train)} folders; {args.steps} steps, "
+          f"{args.layers} x {args.hidden}")
     print("| folder | role | rows | fit mse | constant (training mean) mse |\n|---|---|---:|---:|---:|")
     for p, (o, t) in data.items():
         role = "train" if p in args.train else "held out"
