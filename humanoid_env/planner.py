@@ -157,9 +157,9 @@ class TrackingPlanner:
         `start_frame`. With a `policy` (observation -> action), the policy acts instead and the planner, replanning
         every step from the state the policy led to, only labels each state with its own choice (DAgger's expert:
         labels on the learner's states, where a clone of the planner's motions goes wrong). Each of those plans
-        tracks the reference from its frame nearest the state (`nearest_frame`), not from the step count: a policy
-        still lying at step 60 gets the labels that start a rise, not those of the reference's frame 60, which
-        stands (docs/results.md section 35)."""
+        tracks the reference from its frame nearest the state (`nearest_frame`; `start_frame` is then unused), not
+        from the step count: a policy still lying at step 60 gets the labels that start a rise, not those of the
+        reference's frame 60, which stands (docs/results.md section 35)."""
         if steps < 1:
             raise EnvError(f"planner steps must be >= 1, got {steps}")
         qpos, qvel = check_state(qpos, qvel)
