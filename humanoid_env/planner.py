@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from humanoid_env.actions import DEFAULT_ACTION_MAPPING
+from humanoid_env.actions import DEFAULT_ACTION_MAPPING, check_action
 from humanoid_env.env import HumanoidEnv, check_state
 from humanoid_env.errors import EnvError
 from humanoid_env.model import N_SUBSTEPS, NQ, NU, NV, model_path
@@ -131,10 +131,15 @@ class TrackingPlanner:
 
     def nearest_frame(self, qpos: np.ndarray) -> int:
         """The reference frame closest to the pose `qpos` (76,) under the cost's pose, height and tilt terms."""
-        c, ref = self.cfg, self.reference
-        pose = ((ref[:, 7:] - qpos[None, 7:]) ** 2).mean(-1)
-        tilt = 1.0 - (up_axis(ref[:, 3:7]) * up_axis(qpos[None, 3:7])).sum(-1)
-        return int(np.argmin(c.w_pose * pose + c.w_height * (ref[:, 2] - qpos[2]) ** 2 + c.w_tilt * tilt))
+        return int(np.argmin(self.pose_error(self.reference, qpos[None])))
+
+    def pose_error(self, qpos: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Weighted joint-angle, pelvis-height and tilt error of poses qpos (..., 76) against target (broadcast)."""
+        c = self.cfg
+        pose = ((qpos[..., 7:] - target[..., 7:]) ** 2).mean(-1)
+        height = (qpos[..., 2] - target[..., 2]) ** 2
+        tilt = 1.0 - (up_axis(qpos[..., 3:7]) * up_axis(target[..., 3:7])).sum(-1)
+        return c.w_pose * pose + c.w_height * height + c.w_tilt * tilt
 
     def cost(self, qpos: np.ndarray, qvel: np.ndarray, sensed: np.ndarray, target: np.ndarray) -> np.ndarray:
         """(K,) summed cost of K predicted state sequences qpos (K, H, 76), qvel (K, H, 75) and their sensors
@@ -144,12 +149,9 @@ class TrackingPlanner:
         feet = sensed[..., 6:18].reshape(*sensed.shape[:-1], len(_FEET), 3).mean(-2)
         capture = com[..., :2] + com_vel[..., :2] * np.sqrt(np.maximum(com[..., 2:3], 0.1) / 9.81)
         balance = ((capture - feet[..., :2]) ** 2).sum(-1) * (target[None, :, 2] > STANDING_TARGET)
-        pose = ((qpos[..., 7:] - target[None, :, 7:]) ** 2).mean(-1)
-        height = (qpos[..., 2] - target[None, :, 2]) ** 2
-        tilt = 1.0 - (up_axis(qpos[..., 3:7]) * up_axis(target[None, :, 3:7])).sum(-1)
         motion = (c.w_joint_speed * (qvel[..., 6:] ** 2).mean(-1) + c.w_root_speed * (qvel[..., :2] ** 2).sum(-1)
                   + c.w_root_spin * (qvel[..., 3:6] ** 2).sum(-1))
-        return (c.w_pose * pose + c.w_height * height + c.w_tilt * tilt + c.w_balance * balance + motion).sum(-1)
+        return (self.pose_error(qpos, target[None]) + c.w_balance * balance + motion).sum(-1)
 
     def run(self, qpos: np.ndarray, qvel: np.ndarray, steps: int, start_frame: float = 0.0,
             policy: Callable[[np.ndarray], np.ndarray] | None = None) -> PlannedMotion:
@@ -187,7 +189,8 @@ class TrackingPlanner:
             best = int(np.argmin(cost))
             costs.append(float(cost[best]))
             chosen = actions[best, :1 if policy is not None else min(c.execute, steps - t)]
-            executed = chosen if policy is None else check_action(policy(obs))[None]
+            executed = (chosen if policy is None
+                        else np.clip(check_action(policy(obs), (NU,), "policy action"), -1.0, 1.0)[None])
             for a, label in zip(executed, chosen):
                 obs, _, _, _, info = env.step(a)
                 acts.append(a.astype(np.float32))
@@ -201,12 +204,3 @@ class TrackingPlanner:
                 correction = np.concatenate([candidates[best, n:], np.repeat(candidates[best, -1:], n, 0)])
         return PlannedMotion(np.array(qp), np.array(qv), np.array(ob), np.array(acts), np.array(costs),
                              np.array(labels))
-
-
-def check_action(action: np.ndarray) -> np.ndarray:
-    """A policy's action as (69,) float64 in [-1, 1]; EnvError for a wrong shape or a non-finite value."""
-    a = np.asarray(action, dtype=np.float64).reshape(-1)
-    if a.shape != (NU,) or not np.isfinite(a).all():
-        raise EnvError(f"policy action must be {NU} finite values, got shape {np.shape(action)}"
-                       + ("" if a.shape != (NU,) else " with NaN or inf"))
-    return np.clip(a, -1.0, 1.0)
