@@ -17,6 +17,7 @@ import numpy as np
 
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.upright import CONTROL_HZ, got_up, pelvis_heights
+from humanoid_env.inits import FixedStates
 from humanoid_env.vector import VectorHumanoidEnv
 from motions.demonstrations import Demonstration, DemonstrationError, load_demonstrations
 
@@ -24,16 +25,9 @@ from motions.demonstrations import Demonstration, DemonstrationError, load_demon
 OFF_TRACK = 0.15
 
 
-class FirstStates:
+def first_states(demos: list[Demonstration]) -> FixedStates:
     """Initial states: each demonstration's first frame, in order (env i starts demonstration i)."""
-
-    def __init__(self, demos: list[Demonstration]) -> None:
-        self.qpos = np.stack([d.clip.qpos[0] for d in demos])
-        self.qvel = np.stack([d.clip.qvel[0] for d in demos])
-
-    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
-        i = np.arange(n) % len(self.qpos)
-        return self.qpos[i].copy(), self.qvel[i].copy()
+    return FixedStates(np.stack([d.clip.qpos[0] for d in demos]), np.stack([d.clip.qvel[0] for d in demos]))
 
 
 def noisy_replay(demos: list[Demonstration], sigma: float, steps: int, seed: int = 0, threads: int = 1) -> np.ndarray:
@@ -42,7 +36,7 @@ def noisy_replay(demos: list[Demonstration], sigma: float, steps: int, seed: int
     actions = np.stack([d.actions[:steps] for d in demos], axis=1)  # (steps, demos, A)
     noise = np.random.default_rng(seed).normal(0.0, sigma, actions.shape) if sigma else 0.0
     actions = np.clip(actions + noise, -1.0, 1.0).astype(np.float32)
-    env = VectorHumanoidEnv(len(demos), init=FirstStates(demos), max_episode_steps=steps + 1,
+    env = VectorHumanoidEnv(len(demos), init=first_states(demos), max_episode_steps=steps + 1,
                             action_mapping=demos[0].action_mapping, num_threads=threads)
     try:
         env.reset(seed=0)
@@ -77,7 +71,7 @@ def main() -> None:
           f"{len(demos)}, and median seconds with the pelvis within {OFF_TRACK} m of the demonstration's")
     rows = [(f"own actions, noise {s:g}", noisy_replay(demos, s, steps, args.seed, args.threads)) for s in args.noise]
     for spec in ["zero", *args.agents]:
-        heights = pelvis_heights(make_agent(spec, seed=args.seed), FirstStates(demos), len(demos), steps, args.seed,
+        heights = pelvis_heights(make_agent(spec, seed=args.seed), first_states(demos), len(demos), steps, args.seed,
                                  num_threads=args.threads)
         rows.append((spec, heights))
     print("| actions | up | on track (s) |\n|---|---:|---:|")

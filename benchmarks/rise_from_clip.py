@@ -17,18 +17,8 @@ import numpy as np
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.runner import EPISODE_STEPS
 from fbcpr.evaluation.upright import got_up, pelvis_heights
-from motions.clip import Clip, load_clip
-
-
-class ClipFrames:
-    """Initial states: the clip's frames `index` (repeated to fill a batch), exactly as recorded."""
-
-    def __init__(self, clip: Clip, index: np.ndarray) -> None:
-        self.clip, self.index = clip, index
-
-    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
-        i = np.resize(self.index, n)
-        return self.clip.qpos[i].copy(), self.clip.qvel[i].copy()
+from humanoid_env.inits import FixedStates
+from motions.clip import load_clip
 
 
 def frames_near(fraction: float, n_frames: int, count: int) -> np.ndarray:
@@ -59,8 +49,8 @@ def main() -> None:
         agent = make_agent(spec, seed=args.seed)
         cells = []
         for index in starts:
-            h = pelvis_heights(agent, ClipFrames(clip, index), args.episodes, EPISODE_STEPS, args.seed,
-                               num_threads=args.threads)
+            init = FixedStates(clip.qpos[index], clip.qvel[index])
+            h = pelvis_heights(agent, init, args.episodes, EPISODE_STEPS, args.seed, num_threads=args.threads)
             cells.append(f"{got_up(h).sum():>3d} ({np.median(h.max(0)):.2f})")
         print(f"{spec:28s} " + " ".join(f"{c:>12s}" for c in cells), flush=True)
 

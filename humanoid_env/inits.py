@@ -129,6 +129,23 @@ class MocapInit:
         return qpos, qvel
 
 
+class FixedStates:
+    """Given states, in order and repeated to fill a batch (env i starts state i mod k): evaluations that start
+    every env from chosen states, such as a clip's frames or demonstrations' first states."""
+
+    def __init__(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        qpos, qvel = np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
+        if qpos.ndim != 2 or len(qpos) == 0 or qpos.shape[1:] != (NQ,) or qvel.shape != (len(qpos), NV):
+            raise InvalidStateError(f"FixedStates needs qpos (k, {NQ}) and qvel (k, {NV}) with k >= 1, got "
+                                    f"{qpos.shape} and {qvel.shape}")
+        self.qpos, self.qvel = qpos, qvel
+
+    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+        _check_n(n)
+        i = np.arange(n) % len(self.qpos)
+        return self.qpos[i], self.qvel[i]
+
+
 class MixtureInit:
     """Each state comes from component k with probability weights[k]."""
 

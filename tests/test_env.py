@@ -14,7 +14,7 @@ from gymnasium.utils.env_checker import check_env
 
 from humanoid_env.env import HumanoidEnv
 from humanoid_env.actions import ActionMap
-from humanoid_env.inits import DefaultInit, FallInit, MixtureInit, MocapInit, _Geometry, make_init
+from humanoid_env.inits import DefaultInit, FallInit, FixedStates, MixtureInit, MocapInit, _Geometry, make_init
 from humanoid_env.model import JOINT_NAMES, NQ, NV, joint_ranges, load_model
 from humanoid_env.observation import observe
 
@@ -235,6 +235,21 @@ def test_mocap_and_mixture_inits():
         make_init(0.5, focus_prob=0.3)
     with pytest.raises(ValueError, match="weight"):
         MixtureInit([DefaultInit()], [-1.0])
+
+
+def test_fixed_states_come_in_order_and_repeat_to_fill_a_batch():
+    qpos, qvel = np.tile(load_model().qpos0, (3, 1)), np.zeros((3, NV))
+    qpos[:, 0], qvel[:, 0] = [1.0, 2.0, 3.0], [0.1, 0.2, 0.3]
+    init = FixedStates(qpos, qvel)
+    q, v = init.sample(np.random.default_rng(0), 7)
+    np.testing.assert_array_equal(q[:, 0], [1, 2, 3, 1, 2, 3, 1])
+    np.testing.assert_array_equal(v[:, 0], [0.1, 0.2, 0.3, 0.1, 0.2, 0.3, 0.1])
+    q[:] = 0.0                                                   # the caller's copy, not the source's
+    assert init.sample(np.random.default_rng(0), 1)[0][0, 0] == 1.0
+    with pytest.raises(ValueError, match=r"FixedStates needs qpos \(k, 76\)"):
+        FixedStates(qpos[:, :-1], qvel)
+    with pytest.raises(ValueError, match="k >= 1"):
+        FixedStates(qpos[:0], qvel[:0])
 
 
 def test_rendering_and_video(tmp_path):
