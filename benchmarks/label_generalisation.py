@@ -25,7 +25,7 @@ def rows(folder: Path) -> tuple[np.ndarray, np.ndarray]:
     """The (observation, target) rows of a demonstration folder: labels where a rollout carries them."""
     demos = load_demonstrations(folder)
     obs = np.concatenate([d.clip.obs[:-1] for d in demos]).astype(np.float32)
-    target = np.concatenate([d.actions if d.labels is None else d.labels for d in demos]).astype(np.float32)
+    target = np.concatenate([d.target for d in demos]).astype(np.float32)
     return obs, target
 
 

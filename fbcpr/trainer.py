@@ -246,9 +246,7 @@ class Trainer:
             self.demos["demo"] = torch.ones(n, dtype=torch.bool, device=dev)
             self.demos["demo_next"] = torch.as_tensor(~last, device=dev)
             self.demos["demo_next_action"] = torch.as_tensor(nxt, dtype=torch.float32, device=dev)
-            # what behaviour cloning pulls toward: an expert's labels where a rollout carries them (DAgger), else the
-            # demonstrated actions
-            target = np.concatenate([d.actions if d.labels is None else d.labels for d in demos])
+            target = np.concatenate([d.target for d in demos])  # labels where a rollout carries them (DAgger)
             self.demos["demo_target"] = torch.as_tensor(target, dtype=torch.float32, device=dev)
             self._notice(f"train.demonstrations: {len(demos)} demonstrations, {n:,} transitions held apart, "
                          f"{cfg.train.demonstration_share:.0%} of every batch")

@@ -35,6 +35,11 @@ class Demonstration:
     # labelled by the planner, DAgger); None where the actions are the expert's own
     labels: np.ndarray | None = None
 
+    @property
+    def target(self) -> np.ndarray:
+        """What behaviour cloning pulls toward: the expert's labels where the rollout carries them, else its actions."""
+        return self.actions if self.labels is None else self.labels
+
 
 def clip_paths(folder: Path) -> list[Path]:
     """The clip files of a folder in name order, without the actions files of demonstrations kept there."""
