@@ -21,6 +21,7 @@ import numpy as np
 
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.upright import STAND_PROMPT, action_mapping
+from humanoid_env.errors import EnvError
 from humanoid_env.planner import PlannerConfig, TrackingPlanner
 from motions.clip import Clip
 from motions.demonstrations import Demonstration, DemonstrationError, load_demonstrations, save_demonstration
@@ -36,6 +37,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=PlannerConfig.warm_start,
                     help="plan from the last label's best sequence; off: a label depends on the state alone")
+    ap.add_argument("--planner", nargs="+", default=[], metavar="NAME=VALUE",
+                    help="other PlannerConfig fields, e.g. iterations=4 elites=4 noise_decay=0.5")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, help="folder for the labelled rollouts (git-ignored data/ fits); its name "
                     "ends theirs, so that the rounds of DAgger go in one folder")
@@ -52,7 +55,11 @@ def main() -> None:
         raise SystemExit(f"{args.agent} acts under the {mapping!r} action mapping, the demonstrations under "
                          f"{demos[0].action_mapping!r}")
     z = agent.reward_z(STAND_PROMPT)[None]
-    cfg = PlannerConfig(samples=args.samples, threads=args.threads, seed=args.seed, warm_start=args.warm_start)
+    try:
+        cfg = PlannerConfig(samples=args.samples, threads=args.threads, seed=args.seed,
+                            warm_start=args.warm_start).with_overrides(args.planner)
+    except EnvError as err:
+        ap.error(str(err))
     print(f"{args.agent} acting from the first states of {len(demos)} demonstrations, {args.steps} steps each; the "
           f"planner ({cfg.samples} samples) labels every state")
     print("| demonstration | policy vs label, mse | pelvis at the end (m) | seconds |\n|---|---:|---:|---:|")

@@ -23,6 +23,7 @@ import numpy as np
 
 from fbcpr.evaluation.upright import got_up
 from humanoid_env.env import HumanoidEnv
+from humanoid_env.errors import EnvError
 from humanoid_env.inits import FallInit
 from humanoid_env.model import NU
 from humanoid_env.planner import PlannerConfig, TrackingPlanner
@@ -64,6 +65,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=PlannerConfig.warm_start,
                     help="start each plan from the last one's best sequence (off: from the feed-forward alone)")
+    ap.add_argument("--planner", nargs="+", default=[], metavar="NAME=VALUE",
+                    help="other PlannerConfig fields, e.g. iterations=4 elites=4 noise_decay=0.5")
     ap.add_argument("--save", type=Path, help="folder for the motions that end up, as demonstrations (git-ignored data/ fits)")
     args = ap.parse_args()
     if any(not 0.0 <= f <= 1.0 for f in args.fractions):
@@ -71,6 +74,10 @@ def main() -> None:
     clip = load_clip(args.clip)
     base = PlannerConfig(samples=args.samples, horizon=args.horizon, noise=args.noise, rate=args.rate,
                          w_balance=args.balance, threads=args.threads, warm_start=args.warm_start)
+    try:
+        base = base.with_overrides(args.planner)
+    except EnvError as err:
+        ap.error(str(err))
     print(f"{clip.name}: {clip.n_frames} frames; {args.steps} steps per start; planner {base}")
     frames = [round(f * (clip.n_frames - 1)) for f in args.fractions]
     starts = [(f"fraction {f:.2f}", i, clip.qpos[i], clip.qvel[i]) for f, i in zip(args.fractions, frames)]

@@ -7,7 +7,12 @@ simulator answers it, and what it executes is a physically consistent motion wit
 Every `execute` control steps it draws `samples` action sequences over `horizon` steps: the reference's joint
 angles as PD targets (the feed-forward), plus the current correction, plus Gaussian noise on knots every
 `knot_every` steps (linear in between; candidate 0 keeps the current correction without noise). All of them are
-rolled out in parallel (`mujoco.rollout`, C threads) from the current state, and the cheapest is kept. Its first
+rolled out in parallel (`mujoco.rollout`, C threads) from the current state, and the mean of the `elites` cheapest
+becomes the correction (with 1, the cheapest is kept). `iterations` > 1 repeats that draw around the new correction
+within one plan (the cross-entropy method), with the noise shrunk by `noise_decay` each time. `chains` > 1 runs that
+many such planners side by side on the same state, each keeping its own correction, and executes the mean of their
+plans: the warm start makes one planner's choice a random walk of kept noise (docs/results.md section 35), and the
+mean of independent walks is a steadier function of the state. The plan's first
 `execute` actions are then applied in a real `HumanoidEnv`, so the returned trajectory is exactly what the env does
 with those actions. The cost, summed over the horizon: joint-angle error to the reference, pelvis height error, tilt
 of the pelvis's up axis against the reference's, joint speeds, and root speed. After the reference ends the target
@@ -15,7 +20,7 @@ blends into the rest pose (action 0), which stands on its own.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import Callable
 
 import mujoco
@@ -55,6 +60,11 @@ class PlannerConfig:
     execute: int = 2           # control steps applied from each plan
     knot_every: int = 4        # control steps between noise knots
     noise: float = 0.1         # std of the knot noise, in action units
+    iterations: int = 1        # draws per plan, each around the last one's correction (cross-entropy method)
+    elites: int = 1            # cheapest candidates averaged into the correction (1: the cheapest alone)
+    noise_decay: float = 1.0   # the knot noise's factor from one iteration to the next
+    chains: int = 1            # independent planners on the same state, each with its own correction; the mean
+                               # of their plans is executed (and is the label), so a label's noise shrinks
     rate: float = 1.0          # reference frames advanced per control step
     blend_steps: int = 15      # control steps over which the target blends into the rest pose after the reference
     w_pose: float = 1.0        # mean squared joint-angle error (rad^2)
@@ -70,14 +80,41 @@ class PlannerConfig:
                                    # feed-forward alone, so that a label depends on the state, not on the history
 
     def __post_init__(self) -> None:
-        for name in ("samples", "horizon", "execute", "knot_every", "threads"):
+        for name in ("samples", "horizon", "execute", "knot_every", "threads", "iterations", "elites",
+                     "chains"):
             if getattr(self, name) < 1:
                 raise EnvError(f"planner {name} must be >= 1, got {getattr(self, name)}")
         if self.execute > self.horizon:
             raise EnvError(f"planner execute ({self.execute}) must be <= horizon ({self.horizon})")
-        if not (self.noise >= 0 and self.rate >= 0 and self.blend_steps >= 1):
-            raise EnvError(f"planner noise and rate must be >= 0 and blend_steps >= 1, got {self.noise}, "
-                           f"{self.rate}, {self.blend_steps}")
+        if self.elites > self.samples:
+            raise EnvError(f"planner elites ({self.elites}) must be <= samples ({self.samples})")
+        if not (self.noise >= 0 and self.rate >= 0 and self.blend_steps >= 1 and 0 < self.noise_decay <= 1):
+            raise EnvError(f"planner noise and rate must be >= 0, blend_steps >= 1 and noise_decay in (0, 1], got "
+                           f"{self.noise}, {self.rate}, {self.blend_steps}, {self.noise_decay}")
+
+    def with_overrides(self, items: list[str]) -> PlannerConfig:
+        """This config with `name=value` items applied (a script's `--planner iterations=4 elites=4`), each value
+        read as its field's type; an unknown name or a value of the wrong type is an EnvError naming it."""
+        types = {f.name: f.type for f in fields(self)}
+        changes = {}
+        for item in items:
+            name, sep, value = item.partition("=")
+            if not sep or name not in types:
+                raise EnvError(f"planner override {item!r}: expected name=value with a name among {sorted(types)}")
+            kind = {"int": int, "float": float, "bool": _boolean}[types[name]]
+            try:
+                changes[name] = kind(value)
+            except ValueError:
+                raise EnvError(f"planner override {item!r}: {value!r} is not a {types[name]}") from None
+            if not np.isfinite(changes[name]):
+                raise EnvError(f"planner override {item!r}: the value must be finite")
+        return replace(self, **changes)
+
+
+def _boolean(text: str) -> bool:
+    if text.lower() not in ("true", "false", "1", "0"):
+        raise ValueError(text)
+    return text.lower() in ("true", "1")
 
 
 @dataclass
@@ -88,7 +125,8 @@ class PlannedMotion:
     qvel: np.ndarray       # (T+1, 75)
     obs: np.ndarray        # (T+1, 358)
     actions: np.ndarray    # (T, 69), in [-1, 1], for the planner's action mapping: what was executed
-    plan_costs: np.ndarray  # the chosen candidate's cost at each plan: T / execute of them, T when a policy acted
+    plan_costs: np.ndarray  # the chosen candidate's cost at each plan (the chains' mean): T / execute of them, T
+                            # when a policy acted
     labels: np.ndarray     # (T, 69): the planner's own choice at each step; the actions unless a policy acted
 
 
@@ -153,6 +191,16 @@ class TrackingPlanner:
                   + c.w_root_spin * (qvel[..., 3:6] ** 2).sum(-1))
         return (self.pose_error(qpos, target[None]) + c.w_balance * balance + motion).sum(-1)
 
+    def predicted_cost(self, state: np.ndarray, qacc_warmstart: np.ndarray, actions: np.ndarray,
+                       target: np.ndarray) -> np.ndarray:
+        """(K,) cost of K action sequences (K, H, 69), clipped to [-1, 1], each rolled out from the full physics
+        `state` against target (H, 76)."""
+        ctrl = np.repeat(self.amap.to_ctrl(np.clip(actions, -1.0, 1.0)), N_SUBSTEPS, axis=1)
+        predicted, sensed = rollout.rollout(self._model, self._datas, state[None], ctrl,
+                                            initial_warmstart=qacc_warmstart[None].copy())
+        at = slice(N_SUBSTEPS - 1, None, N_SUBSTEPS)
+        return self.cost(predicted[:, at, 1:1 + NQ], predicted[:, at, 1 + NQ:1 + NQ + NV], sensed[:, at], target)
+
     def run(self, qpos: np.ndarray, qvel: np.ndarray, steps: int, start_frame: float = 0.0,
             policy: Callable[[np.ndarray], np.ndarray] | None = None) -> PlannedMotion:
         """Plan and execute `steps` control steps from the state (qpos, qvel), the reference starting at
@@ -169,26 +217,26 @@ class TrackingPlanner:
         rng = np.random.default_rng(c.seed)
         obs, info = env.reset(options={"qpos": qpos, "qvel": qvel})
         qp, qv, ob, acts, labels, costs = [info["qpos"].copy()], [info["qvel"].copy()], [obs.copy()], [], [], []
-        correction = np.zeros((c.horizon, NU))
+        correction = np.zeros((c.chains, c.horizon, NU))
         state = np.empty(mujoco.mj_stateSize(env.model, _STATE))
         t = 0
         while t < steps:
             phase = start_frame + c.rate * t if policy is None else self.nearest_frame(env.data.qpos)
             target = self.target(phase + c.rate * (1 + np.arange(c.horizon)))
             feed = self.amap.from_angles(target[:, 7:]).astype(np.float64)
-            noise = rng.normal(scale=c.noise, size=(c.samples, self._basis.shape[1], NU))
-            noise[0] = 0.0
-            candidates = correction[None] + np.einsum("hk,bkj->bhj", self._basis, noise)
-            actions = np.clip(feed[None] + candidates, -1.0, 1.0)
-            ctrl = np.repeat(self.amap.to_ctrl(actions), N_SUBSTEPS, axis=1)
             mujoco.mj_getState(env.model, env.data, state, _STATE)
-            predicted, sensed = rollout.rollout(self._model, self._datas, state[None], ctrl,
-                                                initial_warmstart=env.data.qacc_warmstart[None].copy())
-            at = slice(N_SUBSTEPS - 1, None, N_SUBSTEPS)
-            cost = self.cost(predicted[:, at, 1:1 + NQ], predicted[:, at, 1 + NQ:1 + NQ + NV], sensed[:, at], target)
-            best = int(np.argmin(cost))
-            costs.append(float(cost[best]))
-            chosen = actions[best, :1 if policy is not None else min(c.execute, steps - t)]
+            for it in range(c.iterations):
+                noise = rng.normal(scale=c.noise * c.noise_decay ** it,
+                                   size=(c.chains, c.samples, self._basis.shape[1], NU))
+                noise[:, 0] = 0.0
+                candidates = correction[:, None] + np.einsum("hk,cskj->cshj", self._basis, noise)
+                cost = self.predicted_cost(state, env.data.qacc_warmstart,
+                                           (feed + candidates).reshape(-1, c.horizon, NU), target)
+                elite = np.argsort(cost.reshape(c.chains, c.samples), axis=1)[:, : c.elites]
+                correction = np.take_along_axis(candidates, elite[..., None, None], axis=1).mean(1)
+            costs.append(float(np.take_along_axis(cost.reshape(c.chains, -1), elite[:, :1], axis=1).mean()))
+            plan = np.clip(feed + correction, -1.0, 1.0).mean(0)
+            chosen = plan[:1 if policy is not None else min(c.execute, steps - t)]
             executed = (chosen if policy is None
                         else np.clip(check_action(policy(obs), (NU,), "policy action"), -1.0, 1.0)[None])
             for a, label in zip(executed, chosen):
@@ -200,7 +248,7 @@ class TrackingPlanner:
                 ob.append(obs.copy())
             n = len(executed)
             t += n
-            if c.warm_start:
-                correction = np.concatenate([candidates[best, n:], np.repeat(candidates[best, -1:], n, 0)])
+            correction = (np.concatenate([correction[:, n:], np.repeat(correction[:, -1:], n, 1)], 1)
+                          if c.warm_start else np.zeros_like(correction))
         return PlannedMotion(np.array(qp), np.array(qv), np.array(ob), np.array(acts), np.array(costs),
                              np.array(labels))
