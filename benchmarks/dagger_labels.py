@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ import numpy as np
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.upright import STAND_PROMPT, action_mapping
 from humanoid_env.errors import EnvError
-from humanoid_env.planner import PlannerConfig, TrackingPlanner
+from humanoid_env.planner import PlannedMotion, PlannerConfig, TrackingPlanner
 from motions.clip import Clip
 from motions.demonstrations import Demonstration, DemonstrationError, load_demonstrations, save_demonstration
 
@@ -35,11 +36,12 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=60, help="control steps per rollout (30 per second)")
     ap.add_argument("--samples", type=int, default=PlannerConfig.samples)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=PlannerConfig.warm_start,
-                    help="plan from the last label's best sequence; off: a label depends on the state alone")
     ap.add_argument("--planner", nargs="+", default=[], metavar="NAME=VALUE",
-                    help="other PlannerConfig fields, e.g. iterations=4 elites=4 noise_decay=0.5")
+                    help="other PlannerConfig fields, e.g. warm_start=0.9 chains=4 (see PlannerConfig)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--noise-seeds", type=int, nargs="+", default=[], metavar="SEED",
+                    help="label each rollout again with these planner seeds (the policy acts the same) and print how "
+                         "far their labels lie from --seed's: a label's noise, over each third of the rollout")
     ap.add_argument("--out", type=Path, help="folder for the labelled rollouts (git-ignored data/ fits); its name "
                     "ends theirs, so that the rounds of DAgger go in one folder")
     args = ap.parse_args()
@@ -56,27 +58,50 @@ def main() -> None:
                          f"{demos[0].action_mapping!r}")
     z = agent.reward_z(STAND_PROMPT)[None]
     try:
-        cfg = PlannerConfig(samples=args.samples, threads=args.threads, seed=args.seed,
-                            warm_start=args.warm_start).with_overrides(args.planner)
+        cfg = PlannerConfig(samples=args.samples, threads=args.threads, seed=args.seed).with_overrides(args.planner)
     except EnvError as err:
         ap.error(str(err))
     print(f"{args.agent} acting from the first states of {len(demos)} demonstrations, {args.steps} steps each; the "
           f"planner ({cfg.samples} samples) labels every state")
-    print("| demonstration | policy vs label, mse | pelvis at the end (m) | seconds |\n|---|---:|---:|---:|")
-    gaps = []
+    noise_column = " | label noise, mse by thirds" if args.noise_seeds else ""
+    print(f"| demonstration | policy vs label, mse | pelvis at the end (m){noise_column} | seconds |\n"
+          f"|---|---:|---:|{'---:|' * bool(args.noise_seeds)}---:|")
+    gaps, noises = [], []
     for d in demos:
         start = time.perf_counter()
-        planner = TrackingPlanner(d.clip.qpos, cfg, action_mapping=mapping)
-        m = planner.run(d.clip.qpos[0], d.clip.qvel[0], args.steps, policy=lambda obs: agent.act(obs[None], z)[0])
+
+        def label(seed: int) -> PlannedMotion:
+            planner = TrackingPlanner(d.clip.qpos, replace(cfg, seed=seed), action_mapping=mapping)
+            return planner.run(d.clip.qpos[0], d.clip.qvel[0], args.steps,
+                               policy=lambda obs: agent.act(obs[None], z)[0])
+
+        m = label(args.seed)
         gap = float(np.square(m.actions - m.labels).mean())
         gaps.append(gap)
-        print(f"| {d.clip.name} | {gap:.4f} | {m.qpos[-1, 2]:.2f} | {time.perf_counter() - start:.0f} |", flush=True)
+        noise = ""
+        if args.noise_seeds:
+            per_step = np.mean([label_noise(m, label(seed)) for seed in args.noise_seeds], 0)
+            noises.append([part.mean() for part in np.array_split(per_step, 3)])
+            noise = " | " + " / ".join(f"{x:.4f}" for x in noises[-1])
+        print(f"| {d.clip.name} | {gap:.4f} | {m.qpos[-1, 2]:.2f}{noise} | {time.perf_counter() - start:.0f} |",
+              flush=True)
         if args.out:
             clip = Clip(qpos=m.qpos, qvel=m.qvel, obs=m.obs.astype(np.float32), name=f"{d.clip.name}_{args.out.name}",
                         source=f"{args.agent} from the first state of {d.clip.name}, labelled by the planner",
                         license=d.clip.license)
             save_demonstration(Demonstration(clip, m.actions, mapping, m.labels), args.out / f"{clip.name}.npz")
     print(f"mean policy vs label mse over {len(gaps)} rollouts: {np.mean(gaps):.4f}")
+    if noises:
+        print(f"mean label noise (mse to seed {args.seed}'s labels) over {len(noises)} rollouts, by thirds: "
+              + " / ".join(f"{x:.4f}" for x in np.mean(noises, 0)))
+
+
+def label_noise(first: PlannedMotion, other: PlannedMotion) -> np.ndarray:
+    """(T,) squared distance per step between two planner seeds' labels of one rollout; the same states are
+    required, so that the difference is the planner's alone."""
+    if not np.allclose(first.qpos, other.qpos, atol=1e-6):
+        raise SystemExit("the policy acted differently under two planner seeds: its label noise cannot be measured")
+    return np.square(first.labels - other.labels).mean(1)
 
 
 if __name__ == "__main__":

@@ -63,17 +63,15 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=PlannerConfig.rate)
     ap.add_argument("--balance", type=float, default=PlannerConfig.w_balance, help="weight of the balance term")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=PlannerConfig.warm_start,
-                    help="start each plan from the last one's best sequence (off: from the feed-forward alone)")
     ap.add_argument("--planner", nargs="+", default=[], metavar="NAME=VALUE",
-                    help="other PlannerConfig fields, e.g. iterations=4 elites=4 noise_decay=0.5")
+                    help="other PlannerConfig fields, e.g. warm_start=0.9 chains=4 (see PlannerConfig)")
     ap.add_argument("--save", type=Path, help="folder for the motions that end up, as demonstrations (git-ignored data/ fits)")
     args = ap.parse_args()
     if any(not 0.0 <= f <= 1.0 for f in args.fractions):
         ap.error(f"--fractions: each must be in [0, 1], got {args.fractions}")
     clip = load_clip(args.clip)
     base = PlannerConfig(samples=args.samples, horizon=args.horizon, noise=args.noise, rate=args.rate,
-                         w_balance=args.balance, threads=args.threads, warm_start=args.warm_start)
+                         w_balance=args.balance, threads=args.threads)
     try:
         base = base.with_overrides(args.planner)
     except EnvError as err:

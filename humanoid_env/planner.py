@@ -74,10 +74,12 @@ class PlannerConfig:
     w_root_speed: float = 0.1      # horizontal pelvis speed squared (m^2/s^2)
     w_root_spin: float = 0.01      # pelvis angular speed squared
     w_balance: float = 0.0         # squared distance (m^2) of the capture point from the feet, while the target stands
+    w_effort: float = 0.0          # mean squared correction (action units^2): what the feed-forward alone would not do
     threads: int = 2
     seed: int = 0
-    warm_start: bool = True        # each plan starts from the last one's best sequence; False: from the
-                                   # feed-forward alone, so that a label depends on the state, not on the history
+    warm_start: float = 1.0        # share of the last plan's correction the next one starts from: 1 keeps it (a
+                                   # random walk of kept noise), 0 plans from the feed-forward alone (a label then
+                                   # depends on the state, not on the history), between them it decays
 
     def __post_init__(self) -> None:
         for name in ("samples", "horizon", "execute", "knot_every", "threads", "iterations", "elites",
@@ -88,9 +90,11 @@ class PlannerConfig:
             raise EnvError(f"planner execute ({self.execute}) must be <= horizon ({self.horizon})")
         if self.elites > self.samples:
             raise EnvError(f"planner elites ({self.elites}) must be <= samples ({self.samples})")
-        if not (self.noise >= 0 and self.rate >= 0 and self.blend_steps >= 1 and 0 < self.noise_decay <= 1):
-            raise EnvError(f"planner noise and rate must be >= 0, blend_steps >= 1 and noise_decay in (0, 1], got "
-                           f"{self.noise}, {self.rate}, {self.blend_steps}, {self.noise_decay}")
+        if not (self.noise >= 0 and self.rate >= 0 and self.blend_steps >= 1 and 0 < self.noise_decay <= 1
+                and 0 <= self.warm_start <= 1):
+            raise EnvError(f"planner noise and rate must be >= 0, blend_steps >= 1, noise_decay in (0, 1] and "
+                           f"warm_start in [0, 1], got {self.noise}, {self.rate}, {self.blend_steps}, "
+                           f"{self.noise_decay}, {self.warm_start}")
 
     def with_overrides(self, items: list[str]) -> PlannerConfig:
         """This config with `name=value` items applied (a script's `--planner iterations=4 elites=4`), each value
@@ -101,7 +105,7 @@ class PlannerConfig:
             name, sep, value = item.partition("=")
             if not sep or name not in types:
                 raise EnvError(f"planner override {item!r}: expected name=value with a name among {sorted(types)}")
-            kind = {"int": int, "float": float, "bool": _boolean}[types[name]]
+            kind = {"int": int, "float": float}[types[name]]
             try:
                 changes[name] = kind(value)
             except ValueError:
@@ -109,12 +113,6 @@ class PlannerConfig:
             if not np.isfinite(changes[name]):
                 raise EnvError(f"planner override {item!r}: the value must be finite")
         return replace(self, **changes)
-
-
-def _boolean(text: str) -> bool:
-    if text.lower() not in ("true", "false", "1", "0"):
-        raise ValueError(text)
-    return text.lower() in ("true", "1")
 
 
 @dataclass
@@ -230,8 +228,9 @@ class TrackingPlanner:
                                    size=(c.chains, c.samples, self._basis.shape[1], NU))
                 noise[:, 0] = 0.0
                 candidates = correction[:, None] + np.einsum("hk,cskj->cshj", self._basis, noise)
-                cost = self.predicted_cost(state, env.data.qacc_warmstart,
-                                           (feed + candidates).reshape(-1, c.horizon, NU), target)
+                cost = (self.predicted_cost(state, env.data.qacc_warmstart,
+                                            (feed + candidates).reshape(-1, c.horizon, NU), target)
+                        + c.w_effort * np.square(candidates).mean(-1).sum(-1).reshape(-1))
                 elite = np.argsort(cost.reshape(c.chains, c.samples), axis=1)[:, : c.elites]
                 correction = np.take_along_axis(candidates, elite[..., None, None], axis=1).mean(1)
             costs.append(float(np.take_along_axis(cost.reshape(c.chains, -1), elite[:, :1], axis=1).mean()))
@@ -248,7 +247,6 @@ class TrackingPlanner:
                 ob.append(obs.copy())
             n = len(executed)
             t += n
-            correction = (np.concatenate([correction[:, n:], np.repeat(correction[:, -1:], n, 1)], 1)
-                          if c.warm_start else np.zeros_like(correction))
+            correction = c.warm_start * np.concatenate([correction[:, n:], np.repeat(correction[:, -1:], n, 1)], 1)
         return PlannedMotion(np.array(qp), np.array(qv), np.array(ob), np.array(acts), np.array(costs),
                              np.array(labels))

@@ -1,5 +1,6 @@
 """The planner as DAgger's expert (`TrackingPlanner.run(policy=...)`), labelled demonstrations on disk, and
 benchmarks/dagger_labels.py."""
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -57,14 +58,14 @@ def test_without_warm_start_a_label_is_one_draw_of_noise_from_the_feed_forward_n
     q0, v0 = default_qpos(), np.zeros(NV)
     v0[0] = 0.4
     spread = {}
-    for warm in (True, False):
+    for warm in (1.0, 0.0):
         cfg = PlannerConfig(samples=8, horizon=8, knot_every=2, threads=1, warm_start=warm)
         planner = TrackingPlanner(default_qpos()[None], cfg)
         m = planner.run(q0, v0, steps=48, policy=lambda obs: np.zeros(NU))
         feed = planner.amap.from_angles(default_qpos()[None, 7:])[0]
         spread[warm] = np.sqrt(np.square(m.labels[-16:] - feed).mean(1)).mean()
-    assert spread[False] < 0.15                                  # the knot noise's scale, 0.1
-    assert spread[True] > 2 * spread[False]                      # the kept corrections add up
+    assert spread[0.0] < 0.15                                  # the knot noise's scale, 0.1
+    assert spread[1.0] > 2 * spread[0.0]                      # the kept corrections add up
 
 
 def test_labels_are_saved_beside_the_actions_and_checked(tmp_path, planned):  # noqa: F811
@@ -93,3 +94,15 @@ def test_the_script_labels_a_policys_rollouts_and_saves_them(tmp_path, planned):
     np.testing.assert_array_equal(d.actions, 0.0)              # the zero policy acted
     assert d.labels.shape == (3, NU) and np.abs(d.labels).max() > 0.0
     np.testing.assert_allclose(d.clip.qpos[0], planned.clip.qpos[0])
+
+
+def test_the_script_measures_a_labels_noise_between_planner_seeds(tmp_path, planned):  # noqa: F811
+    save_demonstration(planned, tmp_path / "demos" / "shoved.npz")
+    args = [sys.executable, str(SCRIPT), "zero", "--demos", str(tmp_path / "demos"), "--steps", "6", "--samples", "16",
+            "--threads", "1", "--planner", "horizon=4", "knot_every=2", "noise=0.3",
+            "w_root_speed=100", "--noise-seeds"]  # the shove costs, so noise can win
+    noisy = subprocess.run(args + ["1", "2"], capture_output=True, text=True, timeout=300, check=True).stdout
+    row = re.search(r"^\| shoved \| [\d.]+ \| [\d.]+ \| ([\d.]+) / ([\d.]+) / ([\d.]+) \|", noisy, re.M)
+    assert row and max(map(float, row.groups())) > 0.0, noisy    # other seeds, other labels
+    same = subprocess.run(args + ["0"], capture_output=True, text=True, timeout=300, check=True).stdout
+    assert "by thirds: 0.0000 / 0.0000 / 0.0000" in same, same   # the same seed labels the same states alike

@@ -99,17 +99,18 @@ def test_the_cost_ranks_standing_above_falling():
 @pytest.mark.parametrize("kwargs, word", [(dict(samples=0), "samples"), (dict(horizon=2, execute=3), "execute"),
                                           (dict(noise=-1.0), "noise"), (dict(threads=0), "threads"),
                                           (dict(chains=0), "chains"), (dict(samples=4, elites=5), "elites"),
-                                          (dict(noise_decay=0.0), "noise_decay")])
+                                          (dict(noise_decay=0.0), "noise_decay"), (dict(warm_start=-0.1), "warm_start")])
 def test_bad_planner_settings_are_named(kwargs, word):
     with pytest.raises(EnvError, match=word):
         PlannerConfig(**kwargs)
 
 
 def test_overrides_are_read_as_their_fields_types_and_bad_ones_are_named():
-    cfg = PlannerConfig().with_overrides(["chains=4", "noise_decay=0.5", "warm_start=false"])
-    assert (cfg.chains, cfg.noise_decay, cfg.warm_start, cfg.samples) == (4, 0.5, False, PlannerConfig.samples)
+    cfg = PlannerConfig().with_overrides(["chains=4", "noise_decay=0.5", "warm_start=0"])
+    assert (cfg.chains, cfg.noise_decay, cfg.warm_start, cfg.samples) == (4, 0.5, 0.0, PlannerConfig.samples)
     for bad, word in ((["chain=4"], "chain=4"), (["chains"], "name=value"), (["chains=two"], "not a int"),
-                      (["noise=nan"], "finite"), (["warm_start=maybe"], "not a bool"), (["elites=99"], "elites")):
+                      (["noise=nan"], "finite"), (["warm_start=maybe"], "not a float"),
+                      (["warm_start=1.5"], "warm_start"), (["elites=99"], "elites")):
         with pytest.raises(EnvError, match=word):
             PlannerConfig().with_overrides(bad)
 
@@ -127,8 +128,8 @@ def label_noise(**kwargs) -> float:
 def test_averaged_chains_and_elites_make_steadier_labels_than_one_planners_pick():
     one = label_noise()
     assert label_noise(chains=4) < 0.5 * one                    # four independent walks, averaged
-    single = label_noise(warm_start=False)
-    assert label_noise(warm_start=False, iterations=3, elites=4, noise_decay=0.7) < 0.7 * single
+    single = label_noise(warm_start=0.0)
+    assert label_noise(warm_start=0.0, iterations=3, elites=4, noise_decay=0.7) < 0.7 * single
 
 
 def test_bad_references_and_steps_are_named():
