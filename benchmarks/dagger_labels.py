@@ -24,7 +24,7 @@ from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.upright import STAND_PROMPT, action_mapping
 from humanoid_env.errors import EnvError
 from humanoid_env.planner import PlannedMotion, PlannerConfig, TrackingPlanner
-from motions.clip import Clip
+from motions.clip import Clip, ClipFormatError, load_clip
 from motions.demonstrations import Demonstration, DemonstrationError, load_demonstrations, save_demonstration
 
 
@@ -32,6 +32,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("agent", help="a checkpoint dir, run dir or 'pretrained' (the policy that acts)")
     ap.add_argument("--demos", required=True, help="a folder of demonstrations (benchmarks/getup_planner.py --save)")
+    ap.add_argument("--reference", type=Path, help="a clip .npz for the planner to track from every start, instead of "
+                    "each demonstration's own motion (so that a label depends on the state, not on the start)")
     ap.add_argument("--count", type=int, default=4, help="label rollouts from the first COUNT demonstrations")
     ap.add_argument("--steps", type=int, default=60, help="control steps per rollout (30 per second)")
     ap.add_argument("--samples", type=int, default=PlannerConfig.samples)
@@ -50,6 +52,10 @@ def main() -> None:
     try:
         demos = load_demonstrations(args.demos)[: args.count]
     except DemonstrationError as err:
+        raise SystemExit(str(err)) from None
+    try:
+        reference = None if args.reference is None else load_clip(args.reference).qpos
+    except ClipFormatError as err:
         raise SystemExit(str(err)) from None
     agent = make_agent(args.agent, seed=args.seed)
     mapping = action_mapping(agent)
@@ -71,7 +77,8 @@ def main() -> None:
         start = time.perf_counter()
 
         def label(seed: int) -> PlannedMotion:
-            planner = TrackingPlanner(d.clip.qpos, replace(cfg, seed=seed), action_mapping=mapping)
+            planner = TrackingPlanner(d.clip.qpos if reference is None else reference, replace(cfg, seed=seed),
+                                      action_mapping=mapping)
             return planner.run(d.clip.qpos[0], d.clip.qvel[0], args.steps,
                                policy=lambda obs: agent.act(obs[None], z)[0])
 
@@ -87,7 +94,8 @@ def main() -> None:
               flush=True)
         if args.out:
             clip = Clip(qpos=m.qpos, qvel=m.qvel, obs=m.obs.astype(np.float32), name=f"{d.clip.name}_{args.out.name}",
-                        source=f"{args.agent} from the first state of {d.clip.name}, labelled by the planner",
+                        source=f"{args.agent} from the first state of {d.clip.name}, labelled by the planner "
+                               f"tracking {args.reference or d.clip.name}",
                         license=d.clip.license)
             save_demonstration(Demonstration(clip, m.actions, mapping, m.labels), args.out / f"{clip.name}.npz")
     print(f"mean policy vs label mse over {len(gaps)} rollouts: {np.mean(gaps):.4f}")

@@ -12,6 +12,7 @@ from humanoid_env.env import HumanoidEnv
 from humanoid_env.errors import EnvError
 from humanoid_env.model import NU, NV, default_qpos
 from humanoid_env.planner import PlannerConfig, TrackingPlanner
+from motions.clip import from_qpos, load_clip, save_clip
 from motions.demonstrations import (Demonstration, DemonstrationError, actions_path, load_demonstration,
                                    save_demonstration)
 from tests.test_demonstrations import planned  # noqa: F401 (a fixture)
@@ -106,3 +107,25 @@ def test_the_script_measures_a_labels_noise_between_planner_seeds(tmp_path, plan
     assert row and max(map(float, row.groups())) > 0.0, noisy    # other seeds, other labels
     same = subprocess.run(args + ["0"], capture_output=True, text=True, timeout=300, check=True).stdout
     assert "by thirds: 0.0000 / 0.0000 / 0.0000" in same, same   # the same seed labels the same states alike
+
+
+def test_with_a_reference_every_start_is_labelled_tracking_that_clip(tmp_path, planned):  # noqa: F811
+    save_demonstration(planned, tmp_path / "demos" / "shoved.npz")
+    crouch = planned.clip.qpos.copy()
+    crouch[:, 7:] += 0.3                                         # a pose the shoved demonstration never takes
+    save_clip(from_qpos(crouch, "crouch", source="test", license="CC0"), tmp_path / "crouch.npz")
+    subprocess.run([sys.executable, str(SCRIPT), "zero", "--demos", str(tmp_path / "demos"), "--steps", "3",
+                    "--samples", "3", "--threads", "1", "--planner", "horizon=4", "knot_every=2",
+                    "--reference", str(tmp_path / "crouch.npz"), "--out", str(tmp_path / "r")],
+                   capture_output=True, text=True, timeout=300, check=True)
+    labels = load_demonstration(tmp_path / "r" / "shoved_r.npz").labels
+    cfg = PlannerConfig(samples=3, horizon=4, knot_every=2, threads=1)
+    expect = TrackingPlanner(load_clip(tmp_path / "crouch.npz").qpos, cfg).run(planned.clip.qpos[0], planned.clip.qvel[0], 3,
+                                              policy=lambda obs: np.zeros(NU)).labels
+    np.testing.assert_allclose(labels, expect, atol=1e-6)
+    own = TrackingPlanner(planned.clip.qpos, cfg).run(planned.clip.qpos[0], planned.clip.qvel[0], 3,
+                                                      policy=lambda obs: np.zeros(NU)).labels
+    assert np.abs(labels - own).max() > 0.1                      # not the demonstration's own motion
+    bad = subprocess.run([sys.executable, str(SCRIPT), "zero", "--demos", str(tmp_path / "demos"), "--reference",
+                          str(tmp_path / "missing.npz")], capture_output=True, text=True, timeout=300)
+    assert bad.returncode != 0 and "missing.npz" in bad.stderr
