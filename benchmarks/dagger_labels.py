@@ -9,7 +9,9 @@ prompt) from each demonstration's first state, and a planner tracking that demon
 the policy reaches and records its own first action there. It prints, per demonstration, how far the policy's
 actions lie from those labels (mean squared error per component) and where the pelvis ended, and `--out` saves
 each rollout as a demonstration whose actions are the policy's and whose labels are the planner's. A label costs
-one plan: about 1.1 s of both cores with the default 32 samples (2.4 s on one beside training).
+one plan: about 1.1 s of both cores with the default 32 samples (2.4 s on one beside training). `--noise-seeds`
+measures how much of a label is the planner's noise; `--reference` has one clip tracked from every start
+(docs/results.md section 36: otherwise a label depends on which demonstration a rollout started from).
 """
 from __future__ import annotations
 

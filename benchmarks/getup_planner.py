@@ -70,10 +70,9 @@ def main() -> None:
     if any(not 0.0 <= f <= 1.0 for f in args.fractions):
         ap.error(f"--fractions: each must be in [0, 1], got {args.fractions}")
     clip = load_clip(args.clip)
-    base = PlannerConfig(samples=args.samples, horizon=args.horizon, noise=args.noise, rate=args.rate,
-                         w_balance=args.balance, threads=args.threads)
     try:
-        base = base.with_overrides(args.planner)
+        base = PlannerConfig(samples=args.samples, horizon=args.horizon, noise=args.noise, rate=args.rate,
+                             w_balance=args.balance, threads=args.threads).with_overrides(args.planner)
     except EnvError as err:
         ap.error(str(err))
     print(f"{clip.name}: {clip.n_frames} frames; {args.steps} steps per start; planner {base}")
