@@ -119,13 +119,13 @@ def test_with_a_reference_every_start_is_labelled_tracking_that_clip(tmp_path, p
                     "--reference", str(tmp_path / "crouch.npz"), "--out", str(tmp_path / "r")],
                    capture_output=True, text=True, timeout=300, check=True)
     labels = load_demonstration(tmp_path / "r" / "shoved_r.npz").labels
-    cfg = PlannerConfig(samples=3, horizon=4, knot_every=2, threads=1)
-    expect = TrackingPlanner(load_clip(tmp_path / "crouch.npz").qpos, cfg).run(planned.clip.qpos[0], planned.clip.qvel[0], 3,
-                                              policy=lambda obs: np.zeros(NU)).labels
-    np.testing.assert_allclose(labels, expect, atol=1e-6)
-    own = TrackingPlanner(planned.clip.qpos, cfg).run(planned.clip.qpos[0], planned.clip.qvel[0], 3,
-                                                      policy=lambda obs: np.zeros(NU)).labels
-    assert np.abs(labels - own).max() > 0.1                      # not the demonstration's own motion
+
+    def planned_labels(reference: np.ndarray) -> np.ndarray:
+        planner = TrackingPlanner(reference, PlannerConfig(samples=3, horizon=4, knot_every=2, threads=1))
+        return planner.run(planned.clip.qpos[0], planned.clip.qvel[0], 3, policy=lambda obs: np.zeros(NU)).labels
+
+    np.testing.assert_allclose(labels, planned_labels(load_clip(tmp_path / "crouch.npz").qpos), atol=1e-6)
+    assert np.abs(labels - planned_labels(planned.clip.qpos)).max() > 0.1  # not the demonstration's own motion
     bad = subprocess.run([sys.executable, str(SCRIPT), "zero", "--demos", str(tmp_path / "demos"), "--reference",
                           str(tmp_path / "missing.npz")], capture_output=True, text=True, timeout=300)
     assert bad.returncode != 0 and "missing.npz" in bad.stderr

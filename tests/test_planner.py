@@ -99,7 +99,8 @@ def test_the_cost_ranks_standing_above_falling():
 @pytest.mark.parametrize("kwargs, word", [(dict(samples=0), "samples"), (dict(horizon=2, execute=3), "execute"),
                                           (dict(noise=-1.0), "noise"), (dict(threads=0), "threads"),
                                           (dict(chains=0), "chains"), (dict(samples=4, elites=5), "elites"),
-                                          (dict(noise_decay=0.0), "noise_decay"), (dict(warm_start=-0.1), "warm_start")])
+                                          (dict(noise_decay=0.0), "noise_decay"),
+                                          (dict(warm_start=-0.1), "warm_start")])
 def test_bad_planner_settings_are_named(kwargs, word):
     with pytest.raises(EnvError, match=word):
         PlannerConfig(**kwargs)
