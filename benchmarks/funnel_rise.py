@@ -65,16 +65,16 @@ def build(args: argparse.Namespace) -> None:
             settle = TrackingPlanner(reference, cfg).run(env.data.qpos.copy(), env.data.qvel.copy(), args.settle,
                                                          start_frame=1.0)
             actions = np.concatenate([demo.actions, settle.actions])
+            if not ends_up(np.concatenate([demo.clip.qpos, settle.qpos[1:]])):
+                print(f"{demo.clip.name}: left out, does not end up (end pelvis {settle.qpos[-1, 2]:.2f} m)", flush=True)
+                continue
             task = bar.add_task(demo.clip.name[:40], total=len(actions))
             traj = stabilise(demo.clip.qpos[0], demo.clip.qvel[0], actions,
                              progress=lambda t: bar.update(task, completed=t + 1))
             bar.remove_task(task)
-            kept = ends_up(traj.qpos)
-            if kept:
-                traj.save(out)
-            print(f"{demo.clip.name}: {len(actions)} steps, end pelvis {traj.qpos[-1, 2]:.2f} m, "
-                  f"{'kept' if kept else 'left out (does not end up)'} ({time.perf_counter() - start:.0f} s)",
-                  flush=True)
+            traj.save(out)
+            print(f"{demo.clip.name}: {len(actions)} steps, end pelvis {traj.qpos[-1, 2]:.2f} m "
+                  f"({time.perf_counter() - start:.0f} s)", flush=True)
 
 
 def holds(agent, qpos: np.ndarray, qvel: np.ndarray, z: np.ndarray) -> np.ndarray:
