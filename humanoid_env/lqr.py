@@ -32,6 +32,10 @@ _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 STATE_DIM = 2 * NV
 #: Control steps of the zero action from the default standing start before the body counts as settled.
 SETTLE_STEPS = 90
+#: Longest trajectory (control steps, 100 s) and most trajectories a library reads: a trajectory's gains take
+#: 41 kB a step, so these bound a library's memory to what a machine has.
+MAX_STEPS = 3000
+MAX_TRAJECTORIES = 200
 
 
 @dataclass(frozen=True)
@@ -150,6 +154,8 @@ class StabilisedTrajectory:
 
     def __post_init__(self) -> None:
         T = len(self.actions)
+        if T > MAX_STEPS:
+            raise EnvError(f"stabilised trajectory has {T} steps, over the limit of {MAX_STEPS}")
         shapes = {"qpos": (T + 1, NQ), "qvel": (T + 1, NV), "actions": (T, NU), "gains": (T, NU, STATE_DIM)}
         if self.handoff is not None:
             self.handoff = np.asarray(self.handoff, dtype=bool)
@@ -173,11 +179,16 @@ class StabilisedTrajectory:
         """Read one saved by `save`; a missing or malformed file is an EnvError naming it."""
         try:
             with np.load(path, allow_pickle=False) as f:
-                arrays = {k: np.asarray(f[k], dtype=np.float64) for k in ("qpos", "qvel", "actions", "gains")}
-                if "handoff" in f.files:
-                    arrays["handoff"] = np.asarray(f["handoff"])
-        except (OSError, KeyError, ValueError) as err:
+                steps = len(f["actions"])  # read first, so that an oversized file's gains are never loaded
+                if steps <= MAX_STEPS:
+                    arrays = {k: np.asarray(f[k], dtype=np.float64) for k in ("qpos", "qvel", "actions")}
+                    arrays["gains"] = np.asarray(f["gains"], dtype=np.float32)
+                    if "handoff" in f.files:
+                        arrays["handoff"] = np.asarray(f["handoff"])
+        except (OSError, KeyError, ValueError, TypeError) as err:
             raise EnvError(f"{path}: not a stabilised trajectory ({err})") from None
+        if steps > MAX_STEPS:
+            raise EnvError(f"{path}: {steps} steps, over the limit of {MAX_STEPS}")
         try:
             return cls(**arrays)
         except EnvError as err:
@@ -190,8 +201,9 @@ def stabilise(qpos: np.ndarray, qvel: np.ndarray, actions: np.ndarray, cost: Lqr
     the gains around it; `progress(t)` after each step's linearisation (it costs ~0.3 s a step)."""
     qpos, qvel = check_state(qpos, qvel)
     acts = np.asarray(actions, dtype=np.float64)
-    if acts.ndim != 2 or acts.shape[1] != NU or len(acts) < 1 or not np.isfinite(acts).all():
-        raise EnvError(f"actions must be finite values of shape (T >= 1, {NU}), got {acts.shape}")
+    if acts.ndim != 2 or acts.shape[1] != NU or not 1 <= len(acts) <= MAX_STEPS or not np.isfinite(acts).all():
+        raise EnvError(f"actions must be finite values of shape (T, {NU}) with 1 <= T <= {MAX_STEPS}, "
+                       f"got {acts.shape}")
     env = HumanoidEnv(max_episode_steps=10**9)
     final = stand_cost_to_go(env, cost)
     env.reset(options={"qpos": qpos, "qvel": qvel})
@@ -253,6 +265,8 @@ class FunnelLibrary:
         paths = sorted(Path(folder).glob("*.npz"))
         if not paths:
             raise EnvError(f"{folder}: no stabilised trajectories (*.npz)")
+        if len(paths) > MAX_TRAJECTORIES:
+            raise EnvError(f"{folder}: {len(paths)} trajectories, over the limit of {MAX_TRAJECTORIES}")
         return cls([StabilisedTrajectory.load(p) for p in paths], tail)
 
     def nearest(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:

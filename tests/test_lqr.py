@@ -9,7 +9,7 @@ import pytest
 
 from humanoid_env.env import HumanoidEnv
 from humanoid_env.errors import EnvError
-from humanoid_env.lqr import (FunnelLibrary, LqrCost, StabilisedTrajectory, align_heading, full_state,
+from humanoid_env.lqr import (MAX_STEPS, FunnelLibrary, LqrCost, StabilisedTrajectory, align_heading, full_state,
                               match_features, stabilise, state_error, step_jacobians)
 from humanoid_env.model import NU, NV, default_qpos
 
@@ -144,5 +144,9 @@ def test_bad_trajectories_costs_and_folders_are_named(squat, tmp_path):
         LqrCost(w_action=0.0)
     with pytest.raises(EnvError, match="handoff must have shape"):
         StabilisedTrajectory(traj.qpos, traj.qvel, traj.actions, traj.gains, handoff=np.zeros(3, bool))
+    long = tmp_path / "long.npz"
+    np.savez(long, actions=np.zeros((MAX_STEPS + 1, NU)), gains=np.zeros(1))
+    with pytest.raises(EnvError, match=f"long.npz: {MAX_STEPS + 1} steps, over the limit"):
+        StabilisedTrajectory.load(long)
     with pytest.raises(EnvError, match="actions must be finite"):
         stabilise(traj.qpos[0], traj.qvel[0], np.full((3, NU), np.nan))
