@@ -53,7 +53,8 @@ def summary(heights: np.ndarray) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--clip", required=True, help="a clip .npz of getting up (fbcpr motions import)")
-    ap.add_argument("--fractions", type=float, nargs="+", default=[0.0, 0.6, 0.8])
+    ap.add_argument("--fractions", type=float, nargs="*", default=[0.0, 0.6, 0.8],
+                    help="clip fractions to start from (none: only the fall starts)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--fall-starts", type=int, default=0, help="fall starts, tracking the clip from its first frame")
     ap.add_argument("--steps", type=int, default=300, help="control steps per start (30 per second)")

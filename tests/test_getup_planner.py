@@ -32,3 +32,14 @@ def test_a_standing_start_stays_up_and_is_saved_as_a_demonstration_that_replays(
     for a in demos[0].actions:
         info = env.step(a)[4]
     np.testing.assert_allclose(info["qpos"], demos[0].clip.qpos[-1], atol=1e-6)
+
+
+def test_no_fractions_runs_only_the_fall_starts(tmp_path):
+    clip = from_qpos(np.repeat(default_qpos()[None], 10, 0), "still")
+    save_clip(clip, tmp_path / "still.npz")
+    out = subprocess.run([sys.executable, str(SCRIPT), "--clip", str(tmp_path / "still.npz"), "--fractions",
+                          "--fall-starts", "1", "--seeds", "2", "--steps", "5", "--samples", "3", "--horizon", "4",
+                          "--threads", "1"], capture_output=True, text=True, timeout=300, check=True).stdout
+    assert "fraction" not in out, out
+    assert re.search(r"^fall start 0 f2 \(frame 0, pelvis [\d.]+ m\): zero action", out, re.M), out
+    assert re.search(r"up, of 1 seeds: fall start 0 f2: [01]$", out.strip()), out
