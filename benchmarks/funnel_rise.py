@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from rich.progress import Progress
@@ -42,10 +43,12 @@ HOLD_S = 5
 
 
 def ends_up(qpos: np.ndarray) -> bool:
+    """Up as a fall start counts it: the pelvis above 0.8 m over the whole last second of the states qpos (T, 76)."""
     return bool((qpos[-CONTROL_HZ:, 2] > STANDING).all())
 
 
 def build(args: argparse.Namespace) -> None:
+    """Replay, settle and stabilise each demonstration into the library folder (module docstring)."""
     demos = load_demonstrations(args.demos)
     args.out.mkdir(parents=True, exist_ok=True)
     env = HumanoidEnv(max_episode_steps=10**9)
@@ -66,7 +69,8 @@ def build(args: argparse.Namespace) -> None:
                                                          start_frame=1.0)
             actions = np.concatenate([demo.actions, settle.actions])
             if not ends_up(np.concatenate([demo.clip.qpos, settle.qpos[1:]])):
-                print(f"{demo.clip.name}: left out, does not end up (end pelvis {settle.qpos[-1, 2]:.2f} m)", flush=True)
+                print(f"{demo.clip.name}: left out, does not end up (end pelvis {settle.qpos[-1, 2]:.2f} m)",
+                      flush=True)
                 continue
             task = bar.add_task(demo.clip.name[:40], total=len(actions))
             traj = stabilise(demo.clip.qpos[0], demo.clip.qvel[0], actions,
@@ -77,7 +81,7 @@ def build(args: argparse.Namespace) -> None:
                   f"({time.perf_counter() - start:.0f} s)", flush=True)
 
 
-def holds(agent, qpos: np.ndarray, qvel: np.ndarray, z: np.ndarray) -> np.ndarray:
+def holds(agent: Any, qpos: np.ndarray, qvel: np.ndarray, z: np.ndarray) -> np.ndarray:
     """(N,) whether the agent alone, prompted with z, keeps the pelvis above 0.8 m over the last second of
     `HOLD_S` seconds from each state."""
     env = VectorHumanoidEnv(len(qpos), max_episode_steps=10**9, action_mapping=action_mapping(agent))
@@ -94,6 +98,7 @@ def holds(agent, qpos: np.ndarray, qvel: np.ndarray, z: np.ndarray) -> np.ndarra
 
 
 def mark(args: argparse.Namespace) -> None:
+    """Write each trajectory's handoff states: where the agent alone holds the stand (module docstring)."""
     agent = make_agent(args.agent)
     z = np.asarray(agent.reward_z(STAND_PROMPT), dtype=np.float32)
     for path in sorted(args.library.glob("*.npz")):
@@ -112,6 +117,7 @@ def mark(args: argparse.Namespace) -> None:
 
 
 def evaluate(args: argparse.Namespace) -> None:
+    """The agent alone and the library before it, from the same fall starts (module docstring)."""
     library = FunnelLibrary.load(args.library)
     agent = make_agent(args.agent)
     z = np.asarray(agent.reward_z(STAND_PROMPT), dtype=np.float32)
