@@ -262,6 +262,7 @@ class FunnelLibrary:
 
     @classmethod
     def load(cls, folder: str | Path, tail: int = 5) -> FunnelLibrary:
+        """Every stabilised trajectory (*.npz) of a folder, in name order."""
         paths = sorted(Path(folder).glob("*.npz"))
         if not paths:
             raise EnvError(f"{folder}: no stabilised trajectories (*.npz)")
@@ -271,6 +272,11 @@ class FunnelLibrary:
 
     def nearest(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         """(N,) indices of the library states nearest the states qpos (N, 76), qvel (N, 75)."""
+        qpos, qvel = np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
+        if (qpos.ndim != 2 or qpos.shape[1] != NQ or qvel.shape != (len(qpos), NV)
+                or not (np.isfinite(qpos).all() and np.isfinite(qvel).all())):
+            raise EnvError(f"funnel library states must be finite qpos (N, {NQ}) and qvel (N, {NV}), got "
+                           f"{qpos.shape} and {qvel.shape}")
         f = match_features(qpos, qvel)
         d2 = (f * f).sum(-1)[:, None] - 2 * f @ self._features.T + (self._features ** 2).sum(-1)[None]
         return np.argmin(d2, axis=1)

@@ -138,6 +138,11 @@ def test_bad_trajectories_costs_and_folders_are_named(squat, tmp_path):
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
     with pytest.raises(EnvError, match="junk.npz: not a stabilised trajectory"):
         StabilisedTrajectory.load(tmp_path / "junk.npz")
+    library = FunnelLibrary([traj])
+    with pytest.raises(EnvError, match="funnel library states must be finite qpos"):
+        library.act(traj.qpos[:2], traj.qvel[:3])
+    with pytest.raises(EnvError, match="funnel library states must be finite qpos"):
+        library.act(np.full((1, 76), np.nan), traj.qvel[:1])
     with pytest.raises(EnvError, match="no stabilised trajectories"):
         FunnelLibrary.load(tmp_path / "empty")
     with pytest.raises(EnvError, match="LQR cost weights"):
