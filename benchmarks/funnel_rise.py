@@ -19,17 +19,16 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from rich.progress import Progress
 
 from fbcpr.evaluation.agents import make_agent
 from fbcpr.evaluation.runner import EPISODE_STEPS
-from fbcpr.evaluation.upright import STAND_PROMPT, STANDING, action_mapping, got_up
+from fbcpr.evaluation.upright import STAND_PROMPT, STANDING, action_mapping, got_up, pelvis_heights
 from humanoid_env.env import HumanoidEnv
 from humanoid_env.errors import EnvError
-from humanoid_env.inits import FallInit
+from humanoid_env.inits import FallInit, FixedStates
 from humanoid_env.lqr import FunnelLibrary, StabilisedTrajectory, rest_stand, stabilise
 from humanoid_env.model import CONTROL_HZ
 from humanoid_env.planner import PlannerConfig, TrackingPlanner
@@ -40,11 +39,6 @@ from motions.demonstrations import DemonstrationError, load_demonstrations
 SETTLE_PLANNER = ("w_pose=10", "w_joint_speed=0.01", "w_root_speed=1")
 #: Seconds the agent alone must hold from a state for it to count as a handoff state.
 HOLD_S = 5
-
-
-def ends_up(qpos: np.ndarray) -> bool:
-    """Up as a fall start counts it: the pelvis above 0.8 m over the whole last second of the states qpos (T, 76)."""
-    return bool((qpos[-CONTROL_HZ:, 2] > STANDING).all())
 
 
 def build(args: argparse.Namespace) -> None:
@@ -68,7 +62,7 @@ def build(args: argparse.Namespace) -> None:
             settle = TrackingPlanner(reference, cfg).run(env.data.qpos.copy(), env.data.qvel.copy(), args.settle,
                                                          start_frame=1.0)
             actions = np.concatenate([demo.actions, settle.actions])
-            if not ends_up(np.concatenate([demo.clip.qpos, settle.qpos[1:]])):
+            if not got_up(np.concatenate([demo.clip.qpos[:, 2], settle.qpos[1:, 2]])[:, None])[0]:
                 print(f"{demo.clip.name}: left out, does not end up (end pelvis {settle.qpos[-1, 2]:.2f} m)",
                       flush=True)
                 continue
@@ -81,22 +75,6 @@ def build(args: argparse.Namespace) -> None:
                   f"({time.perf_counter() - start:.0f} s)", flush=True)
 
 
-def holds(agent: Any, qpos: np.ndarray, qvel: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """(N,) whether the agent alone, prompted with z, keeps the pelvis above 0.8 m over the last second of
-    `HOLD_S` seconds from each state."""
-    env = VectorHumanoidEnv(len(qpos), max_episode_steps=10**9, action_mapping=action_mapping(agent))
-    try:
-        obs, _ = env.reset(options={"qpos": qpos, "qvel": qvel})
-        zs = np.broadcast_to(z, (len(qpos), len(z)))
-        heights = np.empty((HOLD_S * CONTROL_HZ, len(qpos)))
-        for t in range(len(heights)):
-            obs, *_ = env.step(agent.act(obs, zs))
-            heights[t] = obs[:, 0]
-    finally:
-        env.close()
-    return got_up(heights)
-
-
 def mark(args: argparse.Namespace) -> None:
     """Write each trajectory's handoff states: where the agent alone holds the stand (module docstring)."""
     agent = make_agent(args.agent)
@@ -107,7 +85,9 @@ def mark(args: argparse.Namespace) -> None:
         checked = np.arange(0, T, args.stride)
         up = traj.qpos[checked, 2] > STANDING
         held = np.zeros(len(checked), bool)
-        held[up] = holds(agent, traj.qpos[checked[up]], traj.qvel[checked[up]], z)
+        if up.any():  # the agent alone from those states, as the stand prompt's upright measure runs it
+            starts = FixedStates(traj.qpos[checked[up]], traj.qvel[checked[up]])
+            held[up] = got_up(pelvis_heights(agent, starts, int(up.sum()), HOLD_S * CONTROL_HZ, 0, z))
         # a state hands over when the agent held from its checked state and from the next one
         both = held & np.append(held[1:], held[-1])
         traj.handoff = np.repeat(both, args.stride)[:T]
