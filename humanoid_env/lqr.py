@@ -22,6 +22,7 @@ from typing import Callable, Iterable
 import mujoco
 import numpy as np
 import scipy.linalg
+from scipy.spatial.transform import Rotation
 
 from humanoid_env.env import HumanoidEnv, check_state
 from humanoid_env.errors import EnvError
@@ -224,21 +225,13 @@ def stabilise(qpos: np.ndarray, qvel: np.ndarray, actions: np.ndarray, cost: Lqr
     return StabilisedTrajectory(np.array(qs), np.array(vs), np.clip(acts, -1.0, 1.0), gains)
 
 
-def _rotation_t(quat: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) transposed rotation matrices (world to body) of wxyz quaternions (..., 4)."""
-    w, x, y, z = np.moveaxis(quat, -1, 0)
-    rows = [[1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)],
-            [2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)],
-            [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]]
-    return np.stack([np.stack(r, -1) for r in rows], -2)
-
-
 def match_features(qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
     """(..., 151) where a state is, independent of heading and place, scaled like the cost: root height, the
     vertical in the pelvis's frame, joint angles, the root's velocities in its own frame and joint speeds."""
-    world_to_body = _rotation_t(qpos[..., 3:7])
-    vertical = world_to_body[..., :, 2]
-    lin = np.einsum("...ij,...j->...i", world_to_body, qvel[..., 0:3])
+    lead = qpos.shape[:-1]
+    world_to_body = Rotation.from_quat(qpos[..., 3:7].reshape(-1, 4), scalar_first=True).inv()
+    vertical = world_to_body.apply([0.0, 0.0, 1.0]).reshape(*lead, 3)
+    lin = world_to_body.apply(qvel[..., 0:3].reshape(-1, 3)).reshape(*lead, 3)
     return np.concatenate([np.sqrt(10.0) * qpos[..., 2:3], np.sqrt(10.0) * vertical, qpos[..., 7:],
                            0.1 * lin, 0.1 * qvel[..., 3:]], -1)
 
