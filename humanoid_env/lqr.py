@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation
 
 from humanoid_env.env import HumanoidEnv, check_state
 from humanoid_env.errors import EnvError
-from humanoid_env.model import N_SUBSTEPS, NQ, NU, NV, default_qpos
+from humanoid_env.model import N_SUBSTEPS, NQ, NU, NV, default_qpos, load_model
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 #: Tangent-space state size: position errors (75, the free joint's as 3 + 3), then velocity errors (75).
@@ -245,7 +245,7 @@ class FunnelLibrary:
         if not trajectories:
             raise EnvError("a funnel library needs at least one stabilised trajectory")
         self.trajectories = trajectories
-        self._model = HumanoidEnv(max_episode_steps=1).model
+        self._model = load_model()
         T = [len(tr.actions) for tr in trajectories]
         self._features = np.concatenate([match_features(tr.qpos[:-1], tr.qvel[:-1]) for tr in trajectories])
         self._which = np.concatenate([np.full(t, j) for j, t in enumerate(T)])
