@@ -26,10 +26,13 @@ from fbcpr.config import config_from_dict
 from fbcpr.networks import project_sphere
 
 SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}
-#: The graphed and eager twins agree when no metric, action or weight differs by more than this (float rounding of
-#: kernels that may pick other algorithms inside a capture stays orders of magnitude below it; a graph that replays
-#: stale inputs or the same random draws departs by far more within a few updates).
+#: The graphed and eager twins agree when every difference stays below this, or below FLOOR_FACTOR times the
+#: difference between two eager twins on the same device (the first lease measured graphed against eager at 3.5e-4 on
+#: the metrics and 1.35e-2 on the largest relative weight change, with actions equal to 5e-7: GPU kernels are not
+#: bitwise reproducible, and Adam turns a gradient's rounding into a whole step on weights near zero). A graph that
+#: replays stale inputs or the same random draws departs by far more than the eager twins do.
 AGREE = 1e-3
+FLOOR_FACTOR = 10.0
 OBS, ACT = 358, 69
 
 
@@ -135,28 +138,37 @@ def time_update(agent: FBCPRAgent, batch: dict, windows: torch.Tensor, device: s
     return best
 
 
-def graph_agreement(preset: str, device: str = "cuda", updates: int = 12) -> str:
-    """A graphed and an eager agent from the same seed on the same batches (a new one each update), with
-    exploration actions drawn from the agent's generator between updates, as in training: the largest relative
-    difference of the metrics over all updates, the largest difference of the actions, and of the weights at the
-    end. (Off CUDA both agents run eagerly, so every difference is 0.)"""
-    eager, graphed = make(preset, device, False)[0], make(preset, device, False, graph=True)[0]
+def twin_differences(a: FBCPRAgent, b: FBCPRAgent, preset: str, device: str, updates: int) -> tuple[float, float, float]:
+    """Two agents updated on the same batches (a new one each update), with exploration actions drawn from their
+    generators between updates, as in training: the largest relative difference of the metrics over all updates, the
+    largest difference of the actions, and the relative norm of the difference of all weights at the end."""
     metric_diff = action_diff = 0.0
     for step in range(updates):
-        batch, windows = draw(SIZES[preset], eager.z_dim, step)
-        m_e, m_g = eager.update(batch, windows), graphed.update(batch, windows)
-        metric_diff = max(metric_diff, max(abs(m_e[k] - m_g[k]) / max(abs(m_e[k]), 1e-6) for k in m_e))
+        batch, windows = draw(SIZES[preset], a.z_dim, step)
+        m_a, m_b = a.update(batch, windows), b.update(batch, windows)
+        metric_diff = max(metric_diff, max(abs(m_a[k] - m_b[k]) / max(abs(m_a[k]), 1e-6) for k in m_a))
         obs, z = batch["obs"][:64].to(device), batch["z"][:64].to(device)
-        action_diff = max(action_diff, float((eager.act(obs, z) - graphed.act(obs, z)).abs().max()))
+        action_diff = max(action_diff, float((a.act(obs, z) - b.act(obs, z)).abs().max()))
     with torch.no_grad():
-        weights = max(float((p - q).abs().max() / p.abs().max().clamp_min(1e-12))
-                      for p, q in zip(eager.model.parameters(), graphed.model.parameters()))
+        p = torch.cat([x.flatten() for x in a.model.parameters()])
+        q = torch.cat([x.flatten() for x in b.model.parameters()])
+        weights = float((p - q).norm() / p.norm().clamp_min(1e-12))
+    return metric_diff, action_diff, weights
+
+
+def graph_agreement(preset: str, device: str = "cuda", updates: int = 12) -> str:
+    """A graphed agent against an eager one from the same seed, judged against two eager twins from that seed (the
+    device's own nondeterminism). (Off CUDA every agent runs eagerly, so every difference is 0.)"""
+    eager, graphed = make(preset, device, False)[0], make(preset, device, False, graph=True)[0]
+    got = twin_differences(eager, graphed, preset, device, updates)
+    floor = twin_differences(make(preset, device, False)[0], make(preset, device, False)[0], preset, device, updates)
     step = graphed._step
     state = ("eager (not CUDA)" if not graphed.graphed else "captured" if step.captured
              else f"NOT captured: {step.failure}")
-    verdict = "agree" if max(metric_diff, action_diff, weights) < AGREE else "DIFFER"
-    return (f"{preset}: {state}; {verdict}; after {updates} updates: metrics max rel diff {metric_diff:.2e}, "
-            f"actions max abs diff {action_diff:.2e}, weights max rel diff {weights:.2e}")
+    agree = all(g < max(AGREE, FLOOR_FACTOR * f) for g, f in zip(got, floor))
+    return (f"{preset}: {state}; {'agree' if agree else 'DIFFER'}; after {updates} updates, graphed vs eager "
+            f"(eager twins): metrics max rel diff {got[0]:.2e} ({floor[0]:.2e}), actions max abs diff {got[1]:.2e} "
+            f"({floor[1]:.2e}), weights rel norm diff {got[2]:.2e} ({floor[2]:.2e})")
 
 
 def count_flops(preset: str) -> float:
