@@ -11,8 +11,9 @@ last second) are left out. Files already in the folder are kept, so a stopped bu
 `mark`: from every `--stride`-th state of each trajectory the agent acts alone under the stand prompt for 5 s;
 the states it holds from (it held from this one and the next checked one) become the trajectory's handoff states.
 `eval`: fall starts, the same draws as `fbcpr.evaluation.upright.fall_starts_got_up` (so its seed's agent row is
-the targets' measure): the agent alone under the stand prompt, and the library acting until its nearest state is
-a handoff state, where the agent takes over. The share that is up over the last second is printed for both.
+the targets' measure): the agent alone under the stand prompt; the library acting until its nearest state is a
+handoff state, where the agent takes over; and the same with the agent keeping the bodies it has while their pelvis
+stays above `--release` m. The share that is up over the last second is printed for each.
 """
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ from fbcpr.evaluation.upright import STAND_PROMPT, STANDING, action_mapping, got
 from humanoid_env.env import HumanoidEnv
 from humanoid_env.errors import EnvError
 from humanoid_env.inits import FallInit, FixedStates
-from humanoid_env.lqr import FunnelLibrary, StabilisedTrajectory, rest_stand, stabilise
+from humanoid_env.lqr import HOLD_RELEASE, FunnelLibrary, StabilisedTrajectory, rest_stand, stabilise
 from humanoid_env.model import CONTROL_HZ
 from humanoid_env.planner import PlannerConfig, TrackingPlanner
 from humanoid_env.vector import VectorHumanoidEnv
@@ -104,18 +105,21 @@ def evaluate(args: argparse.Namespace) -> None:
     print(f"{len(library.trajectories)} trajectories, {len(library.handoff)} states "
           f"({library.handoff.mean():.0%} handoff); {args.episodes} fall starts of seed {args.seed}")
     results = {}
-    for name, use_library in (("agent alone", False), ("library, then agent", True)):
+    for name, use_library, hold in (("agent alone", False, False), ("library, then agent", True, False),
+                                    ("... agent keeps bodies", True, True)):
         env = VectorHumanoidEnv(args.episodes, init=FallInit(), max_episode_steps=args.steps + 1,
                                 action_mapping=action_mapping(agent))
         try:
             obs, info = env.reset(seed=args.seed + 1)
             zs = np.broadcast_to(z, (args.episodes, len(z)))
             heights, lqr_steps = np.empty((args.steps, args.episodes)), np.zeros(args.episodes, int)
+            handed = np.zeros(args.episodes, bool)
             start = time.perf_counter()
             for t in range(args.steps):
                 actions = np.asarray(agent.act(obs, zs), dtype=np.float64)
                 if use_library:
-                    feedback, handed = library.act(info["qpos"], info["qvel"])
+                    feedback, handed = library.act(info["qpos"], info["qvel"], handed if hold else None,
+                                                   args.release)
                     actions[~handed] = feedback[~handed]
                     lqr_steps += ~handed
                 obs, _, _, _, info = env.step(actions)
@@ -126,8 +130,9 @@ def evaluate(args: argparse.Namespace) -> None:
         extra = f", library acting {lqr_steps.mean() / args.steps:.0%} of steps" if use_library else ""
         print(f"{name:22s} up {up.sum():3d} of {args.episodes} ({up.mean():.2f}){extra} "
               f"({time.perf_counter() - start:.0f} s)", flush=True)
-    both = results["library, then agent"] & results["agent alone"]
-    print(f"up with both: {both.sum()}, with the library only: {(results['library, then agent'] & ~both).sum()}")
+    alone = results["agent alone"]
+    print("up with the library, not alone: " + ", ".join(
+        f"{name.strip('. ')} {(up & ~alone).sum()}" for name, up in results.items() if name != "agent alone"))
 
 
 def main() -> None:
@@ -149,6 +154,8 @@ def main() -> None:
     e.add_argument("--episodes", type=int, default=64)
     e.add_argument("--steps", type=int, default=EPISODE_STEPS)
     e.add_argument("--seed", type=int, default=0, help="fall starts drawn as fall_starts_got_up draws seed's")
+    e.add_argument("--release", type=float, default=HOLD_RELEASE,
+                   help="pelvis height (m) below which a body the agent holds goes back to the library")
     args = ap.parse_args()
     for name in ("settle", "threads", "stride", "episodes", "steps"):
         if getattr(args, name, 1) < 1:

@@ -236,6 +236,11 @@ def match_features(qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
                            0.1 * lin, 0.1 * qvel[..., 3:]], -1)
 
 
+#: Pelvis height (m) below which a body the stand policy holds goes back to the library (section 38: 0.5 and 0.7
+#: got 77 and 76 of 128 fall starts up).
+HOLD_RELEASE = 0.7
+
+
 class FunnelLibrary:
     """Stabilised trajectories acting as one state-feedback law: at each step the library state nearest the
     current one (`match_features`) picks the trajectory and step whose gains act. At states marked `handoff` (by
@@ -274,12 +279,20 @@ class FunnelLibrary:
         d2 = (f * f).sum(-1)[:, None] - 2 * f @ self._features.T + (self._features ** 2).sum(-1)[None]
         return np.argmin(d2, axis=1)
 
-    def act(self, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def act(self, qpos: np.ndarray, qvel: np.ndarray, held: np.ndarray | None = None,
+            release: float = HOLD_RELEASE) -> tuple[np.ndarray, np.ndarray]:
         """(actions (N, 69) in [-1, 1], handed (N,) bool) for the states qpos (N, 76), qvel (N, 75): where
         `handed`, the nearest state is a handoff state and the action row is the rest pose's (0), for the caller
-        to replace with its stand policy's."""
+        to replace with its stand policy's. Pass the last step's `handed` as `held` to let the stand policy keep
+        the bodies it has while their pelvis stays above `release` m: switching a standing body back to some
+        trajectory's gains by its nearest state loses most of the bodies that fail (docs/results.md section 38)."""
         k = self.nearest(qpos, qvel)
         handed = self.handoff[k]
+        if held is not None:
+            held = np.asarray(held, dtype=bool)
+            if held.shape != handed.shape:
+                raise EnvError(f"funnel library: held must be ({len(handed)},) bool, got shape {held.shape}")
+            handed = handed | (held & (np.asarray(qpos)[:, 2] > release))
         actions = np.zeros((len(k), NU))
         for i in np.flatnonzero(~handed):  # one MuJoCo call per state for the tangent-space error
             tr, t = self.trajectories[self._which[k[i]]], self._step[k[i]]

@@ -41,17 +41,19 @@ def test_build_mark_and_eval(tmp_path):
     assert sorted(p.name for p in lib.iterdir()) == ["still.npz"]
     assert StabilisedTrajectory.load(lib / "still.npz").handoff is None
 
-    def evaluate() -> tuple[int, int, float]:
+    def evaluate() -> tuple[int, int, float, int, float]:
         text = run("eval", str(lib), "zero", "--episodes", "4", "--steps", "35")
         alone = int(re.search(r"agent alone +up +(\d+) of 4", text).group(1))
-        both = re.search(r"library, then agent +up +(\d+) of 4 \([\d.]+\), library acting (\d+)% of steps", text)
-        return alone, int(both.group(1)), float(both.group(2))
+        rows = [re.search(name + r" +up +(\d+) of 4 \([\d.]+\), library acting (\d+)% of steps", text)
+                for name in ("library, then agent", r"\.\.\. agent keeps bodies")]
+        return alone, int(rows[0].group(1)), float(rows[0].group(2)), int(rows[1].group(1)), float(rows[1].group(2))
 
     # unmarked, a trajectory hands over only at its last steps: the library acts on the fall starts
-    assert evaluate()[2] > 0
+    unmarked = evaluate()
+    assert unmarked[2] > 0 and unmarked[4] > 0
     out = run("mark", str(lib), "zero", "--stride", "10")
     assert "still.npz: held from 4 of 4 checked states, first handoff at step 0 of 33" in out, out
     assert StabilisedTrajectory.load(lib / "still.npz").handoff.all()
     # the zero action holds from every state of a stand: the library hands every state over, and the two rows agree
-    alone, with_library, acting = evaluate()
-    assert acting == 0 and with_library == alone
+    alone, with_library, acting, holding, acting_held = evaluate()
+    assert acting == 0 and acting_held == 0 and with_library == holding == alone

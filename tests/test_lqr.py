@@ -117,6 +117,15 @@ def test_a_library_acts_by_its_nearest_state_and_hands_over_where_marked(squat, 
     np.testing.assert_array_equal(handed, [False, False, False, True])
     np.testing.assert_allclose(actions[:3], traj.actions[steps[:3]], atol=1e-6)
     np.testing.assert_array_equal(actions[3], 0.0)
+    held = np.array([True, True, False, False])
+    np.testing.assert_array_equal(lib.act(q, v, held, release=0.0)[1], [True, True, False, True])
+    between = (q[0, 2] + q[1, 2]) / 2  # the lower of the two held bodies goes back to the library
+    kept = lib.act(q, v, held, release=between)[1]
+    np.testing.assert_array_equal(kept, [q[0, 2] > between, q[1, 2] > between, False, True])
+    assert kept[:2].sum() == 1
+    np.testing.assert_array_equal(lib.act(q, v, held, release=10.0)[1], handed)
+    with pytest.raises(EnvError, match="held must be"):
+        lib.act(q, v, held[:2])
 
     marked = StabilisedTrajectory(traj.qpos, traj.qvel, traj.actions, traj.gains, handoff=np.arange(T) == 7)
     marked.save(path)
