@@ -236,8 +236,8 @@ def match_features(qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
                            0.1 * lin, 0.1 * qvel[..., 3:]], -1)
 
 
-#: Pelvis height (m) below which a body the stand policy holds goes back to the library (section 38: 0.5 and 0.7
-#: got 77 and 76 of 128 fall starts up).
+#: Pelvis height (m) below which a body the stand policy holds goes back to the library (docs/results.md section 38:
+#: 0.5 and 0.7 did equally well).
 HOLD_RELEASE = 0.7
 
 
@@ -282,8 +282,8 @@ class FunnelLibrary:
     def act(self, qpos: np.ndarray, qvel: np.ndarray, held: np.ndarray | None = None,
             release: float = HOLD_RELEASE) -> tuple[np.ndarray, np.ndarray]:
         """(actions (N, 69) in [-1, 1], handed (N,) bool) for the states qpos (N, 76), qvel (N, 75): where
-        `handed`, the nearest state is a handoff state and the action row is the rest pose's (0), for the caller
-        to replace with its stand policy's. Pass the last step's `handed` as `held` to let the stand policy keep
+        `handed`, the nearest state is a handoff state (or the body is held, below) and the action row is the rest
+        pose's (0), for the caller to replace with its stand policy's. Pass the last step's `handed` as `held` to let the stand policy keep
         the bodies it has while their pelvis stays above `release` m: switching a standing body back to some
         trajectory's gains by its nearest state loses most of the bodies that fail (docs/results.md section 38)."""
         k = self.nearest(qpos, qvel)
