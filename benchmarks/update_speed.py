@@ -138,7 +138,8 @@ def time_update(agent: FBCPRAgent, batch: dict, windows: torch.Tensor, device: s
     return best
 
 
-def twin_differences(a: FBCPRAgent, b: FBCPRAgent, preset: str, device: str, updates: int) -> tuple[float, float, float]:
+def twin_differences(a: FBCPRAgent, b: FBCPRAgent, preset: str, device: str,
+                     updates: int) -> tuple[float, float, float]:
     """Two agents updated on the same batches (a new one each update), with exploration actions drawn from their
     generators between updates, as in training: the largest relative difference of the metrics over all updates, the
     largest difference of the actions, and the relative norm of the difference of all weights at the end."""

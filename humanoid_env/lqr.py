@@ -283,15 +283,18 @@ class FunnelLibrary:
             release: float = HOLD_RELEASE) -> tuple[np.ndarray, np.ndarray]:
         """(actions (N, 69) in [-1, 1], handed (N,) bool) for the states qpos (N, 76), qvel (N, 75): where
         `handed`, the nearest state is a handoff state (or the body is held, below) and the action row is the rest
-        pose's (0), for the caller to replace with its stand policy's. Pass the last step's `handed` as `held` to let the stand policy keep
-        the bodies it has while their pelvis stays above `release` m: switching a standing body back to some
-        trajectory's gains by its nearest state loses most of the bodies that fail (docs/results.md section 38)."""
+        pose's (0), for the caller to replace with its stand policy's. Pass the last step's `handed` as `held` to
+        let the stand policy keep the bodies it has while their pelvis stays above `release` m: switching a
+        standing body back to some trajectory's gains by its nearest state loses most of the bodies that fail
+        (docs/results.md section 38)."""
         k = self.nearest(qpos, qvel)
         handed = self.handoff[k]
         if held is not None:
             held = np.asarray(held, dtype=bool)
             if held.shape != handed.shape:
                 raise EnvError(f"funnel library: held must be ({len(handed)},) bool, got shape {held.shape}")
+            if not np.isfinite(release):
+                raise EnvError(f"funnel library: release must be a finite pelvis height, got {release}")
             handed = handed | (held & (np.asarray(qpos)[:, 2] > release))
         actions = np.zeros((len(k), NU))
         for i in np.flatnonzero(~handed):  # one MuJoCo call per state for the tangent-space error

@@ -126,6 +126,8 @@ def test_a_library_acts_by_its_nearest_state_and_hands_over_where_marked(squat, 
     np.testing.assert_array_equal(lib.act(q, v, held, release=10.0)[1], handed)
     with pytest.raises(EnvError, match="held must be"):
         lib.act(q, v, held[:2])
+    with pytest.raises(EnvError, match="release must be a finite pelvis height"):
+        lib.act(q, v, held, release=float("nan"))
 
     marked = StabilisedTrajectory(traj.qpos, traj.qvel, traj.actions, traj.gains, handoff=np.arange(T) == 7)
     marked.save(path)
