@@ -60,7 +60,7 @@ class Prompt:
         """z for a reward: relabel up to n buffer samples (next state) with the reward, then regress on B."""
         if method not in ("weighted", "regression"):
             raise PromptError(f"unknown reward inference method {method!r}: use 'weighted' or 'regression'")
-        fn, label = _reward_fn(task)
+        fn, label = reward_fn(task)
         if n < 1:
             raise PromptError(f"number of reward samples must be positive, got {n}")
         if method == "weighted" and not (isinstance(temperature, (int, float)) and np.isfinite(temperature)
@@ -125,7 +125,7 @@ class Prompt:
         return self.bfm.project_z(z.float())
 
 
-def _reward_fn(task: RewardSpec) -> tuple[Callable[..., np.ndarray], str]:
+def reward_fn(task: RewardSpec) -> tuple[Callable[..., np.ndarray], str]:
     """The RewardFn for a registry name (combined names included) or a user callable, with a label for errors."""
     if callable(task):
         return task, getattr(task, "__name__", repr(task))

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -69,6 +70,25 @@ def test_prompt_goal_and_imitate_metrics(ckpt, clip_path):
     res = run("prompt", ckpt, "--imitate", clip_path, "--steps", "3")
     assert res.exit_code == 0, res.output
     assert "EMD to clip" in res.output
+
+
+@pytest.mark.parametrize("flag, value", [("--reward", "move-ego-0-0"), ("--goal", "t_pose")])
+def test_prompt_refine_searches_and_saves_the_z(ckpt, tmp_path, flag, value):
+    out = tmp_path / "z.npy"
+    res = run("prompt", ckpt, flag, value, "--steps", "3", "--refine", "2", "--refine-population", "3",
+              "--refine-starts", "2", "--save-z", out)
+    assert res.exit_code == 0, res.output
+    assert "(refined)" in res.output and "episodes, cos(z, z0)" in res.output
+    assert "14, " in res.output  # (2 generations x 3 + the final mean) x 2 starts
+    before, after = (float(x) for x in re.search(r"(-?[\d.]+) -> (-?[\d.]+)", res.output).groups())
+    assert after >= before
+    z = np.load(out)
+    assert z.shape == (8,) and np.isclose(np.linalg.norm(z), np.sqrt(8), rtol=1e-5)
+
+
+def test_prompt_refine_needs_a_reward_or_goal(ckpt, clip_path):
+    res = run("prompt", ckpt, "--imitate", clip_path, "--refine", "1")
+    assert res.exit_code != 0 and "--refine applies to --reward and --goal" in res.output
 
 
 def test_track_prints_success_and_emd(ckpt, clip_path, tmp_path):

@@ -248,10 +248,10 @@ def test_prompts_steer_a_trained_toy_model(tmp_path):
 
 
 def test_unknown_names_suggest_the_closest_and_do_not_repeat_themselves():
-    from fbcpr.prompt import PromptError, _reward_fn, goal_observation
+    from fbcpr.prompt import PromptError, reward_fn, goal_observation
 
     with pytest.raises(PromptError) as err:
-        _reward_fn("jupm-2")
+        reward_fn("jupm-2")
     assert "did you mean 'jump-2'?" in str(err.value) and str(err.value).count("jupm-2") == 1
     with pytest.raises(PromptError, match=r"unknown goal 't-pose' \(did you mean 't_pose'\?\)"):
         goal_observation("t-pose", 358)
