@@ -5,6 +5,8 @@ sampled every `--every` steps; each frame is labelled with its time and pelvis h
 
     python benchmarks/contact_sheet.py pretrained --prompts reward:move-ego-0-0 reward:move-ego-0-2 goal:t_pose \\
         track:data/clips/deepmimic/walk.npz --out docs/img/pretrained_prompts.png
+
+`z:FILE.npy` rolls out a z saved by `fbcpr prompt ... --save-z` (for instance a refined prompt).
 """
 from __future__ import annotations
 
@@ -22,7 +24,8 @@ TILE_W, TILE_H = 224, 168
 
 
 def prompt_zs(bfm: BFM, spec: str, steps: int) -> tuple[np.ndarray, tuple | None]:
-    """`reward:NAME`, `goal:NAME` or `track:CLIP.npz` -> (z per step, start state or None for the default start).
+    """`reward:NAME`, `goal:NAME`, `track:CLIP.npz` or `z:FILE.npy` -> (z per step, start state or None for the
+    default start).
 
     Every prompt is resolved before any rollout, so a typo in the last one fails in seconds, not after minutes of
     rendering the others."""
@@ -32,8 +35,13 @@ def prompt_zs(bfm: BFM, spec: str, steps: int) -> tuple[np.ndarray, tuple | None
 
         clip = load_clip(name)
         return bfm.prompt.track(clip)[:steps], (clip.qpos[0], clip.qvel[0])
+    if kind == "z":
+        z = np.load(name, allow_pickle=False)
+        if z.shape != (bfm.z_dim,) or not np.all(np.isfinite(z)):
+            raise SystemExit(f"--prompts: {name} must hold one finite z of shape ({bfm.z_dim},), got {z.shape}")
+        return np.repeat(bfm.project_z(z)[None], steps, 0), None
     if kind not in ("reward", "goal"):
-        raise SystemExit(f"--prompts: {spec!r} must be reward:NAME, goal:NAME or track:CLIP.npz")
+        raise SystemExit(f"--prompts: {spec!r} must be reward:NAME, goal:NAME, track:CLIP.npz or z:FILE.npy")
     z = bfm.prompt.reward(name) if kind == "reward" else bfm.prompt.goal(name)
     return np.repeat(z[None], steps, 0), None
 

@@ -20,7 +20,9 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+import torch
 
+from fbcpr.networks import project_sphere
 from fbcpr.prompt import PromptError, RewardSpec, reward_fn
 
 #: (next_obs (N, 358), qpos (N, 76), qvel (N, 75)) -> (N,) per-step value to maximise.
@@ -82,11 +84,12 @@ class Refined:
 
 
 def project(z: np.ndarray) -> np.ndarray:
-    """Rows onto the sqrt(d) sphere the policy was trained on."""
-    norm = np.linalg.norm(z, axis=-1, keepdims=True)
+    """Rows onto the sqrt(d) sphere the policy was trained on (float64 for the search's own arithmetic)."""
+    z = np.asarray(z, dtype=np.float64)
+    norm = np.linalg.norm(z, axis=-1)
     if not np.all(np.isfinite(norm)) or np.any(norm == 0):
         raise PromptError("refine: a z that is zero or not finite cannot be projected onto the sphere")
-    return z / norm * np.sqrt(z.shape[-1])
+    return project_sphere(torch.as_tensor(z)).numpy()
 
 
 def cross_entropy(score: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, search: Search | None = None,
