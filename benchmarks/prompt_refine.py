@@ -5,7 +5,8 @@ then z0 and the refined z are scored, side by side in the same run, on starts th
 - held out: `--held-out` MoCap starts (no falls), seed 100;
 - the target protocol: the evaluation's own test starts (half falls) of `benchmarks/targets.py`, evaluation seeds
   `--eval-seeds`, `--episodes` each.
-Rewards report the return of 300, goals the success and proximity.
+Rewards report the return of 300, goals the success and proximity. The search's speed (env steps with the policy,
+per second) prints next to the held-out evaluation's, a plain batched rollout measured in the same run.
 
     python benchmarks/prompt_refine.py pretrained --tasks move-ego-0-2 --goals t_pose --seeds 0 1 2 \
         --out runs/refine.json
@@ -71,7 +72,9 @@ def run_one(bfm: BFM, task: str, kind: str, motions: Any, args: argparse.Namespa
                            "cosine": result.cosine, "train_score0": result.score0, "train_score": result.score,
                            "history": result.history}
     for name, z in (("z0", result.z0), ("refined", result.z)):
+        t0 = time.perf_counter()
         row[f"{name}_held_out"] = score(bfm, z, task, kind, motions, args.held_out, HELD_OUT_SEED, 0.0, args)
+        row[f"{name}_held_out_s"] = time.perf_counter() - t0
         row[f"{name}_test"] = [score(bfm, z, task, kind, motions, args.episodes, s, None, args)
                                for s in args.eval_seeds]
     return row
@@ -107,7 +110,7 @@ def main() -> None:
     motions = MotionLibrary.load(args.motions)
     rows = []
     print(f"{'task':<16}{'seed':>5}{'min':>6}{'cos':>7} | {'held out z0':>11}{'refined':>9} | "
-          f"{'test z0':>8}{'refined':>9}")
+          f"{'test z0':>8}{'refined':>9} | env steps/s: search, reference (z0 held out)")
     for kind, names in (("reward", args.tasks), ("goal", args.goals)):
         for task in names:
             for seed in args.seeds:
@@ -115,8 +118,9 @@ def main() -> None:
                 rows.append(row)
                 print(f"{task:<16}{seed:>5}{row['refine_s'] / 60:>6.1f}{row['cosine']:>7.3f} | "
                       f"{headline(row['z0_held_out'], kind):>11.3f}{headline(row['refined_held_out'], kind):>9.3f} | "
-                      f"{headline(row['z0_test'], kind):>8.3f}{headline(row['refined_test'], kind):>9.3f}",
-                      flush=True)
+                      f"{headline(row['z0_test'], kind):>8.3f}{headline(row['refined_test'], kind):>9.3f} | "
+                      f"{row['episodes'] * args.steps / row['refine_s']:,.0f}, "
+                      f"{args.held_out * args.steps / row['z0_held_out_s']:,.0f}", flush=True)
                 if args.out is not None:
                     args.out.parent.mkdir(parents=True, exist_ok=True)
                     args.out.write_text(json.dumps(json_safe({"settings": vars(args) | {"out": str(args.out)},
