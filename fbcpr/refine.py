@@ -25,6 +25,8 @@ import torch
 from fbcpr.networks import project_sphere
 from fbcpr.prompt import PromptError, RewardSpec, reward_fn
 
+#: The most envs one generation may step at once (population x starts): ~0.1 MB of simulation state each.
+MAX_ENVS = 4096
 #: (next_obs (N, 358), qpos (N, 76), qvel (N, 75)) -> (N,) per-step value to maximise.
 Objective = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
@@ -203,6 +205,9 @@ def refine(policy: Policy, z0: np.ndarray, objective: Objective, starts: tuple[n
     z0 = np.asarray(z0)
     if z0.shape != (policy.z_dim,):
         raise PromptError(f"refine: z0 must have shape ({policy.z_dim},), got {z0.shape}")
+    if search.population * len(starts[0]) > MAX_ENVS:
+        raise PromptError(f"refine: population x starts = {search.population} x {len(starts[0])} envs a "
+                          f"generation, more than {MAX_ENVS}: use fewer starts or a smaller population")
     result = cross_entropy(rollout_score(policy, objective, starts, steps, num_threads, on_step), z0, search,
                            on_generation)
     result.episodes = (search.generations * search.population + 1) * len(starts[0])

@@ -110,6 +110,8 @@ def test_bad_inputs_are_named(bfm):
         refine(bfm, np.ones(bfm.z_dim + 1), objective, starts, steps=2)
     with pytest.raises(PromptError, match="starts"):
         refine(bfm, np.ones(bfm.z_dim), objective, (starts[0], starts[1][:1]), steps=2)
+    with pytest.raises(PromptError, match="population x starts = 4097 x 2"):
+        refine(bfm, np.ones(bfm.z_dim), objective, starts, steps=2, search=Search(population=4097))
     with pytest.raises(PromptError, match="one finite vector"):
         cross_entropy(lambda zs: np.zeros(len(zs)), np.full(D, np.nan))
     with pytest.raises(PromptError, match="finite values"):
