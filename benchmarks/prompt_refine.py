@@ -63,8 +63,7 @@ def run_one(bfm: BFM, task: str, kind: str, motions: Any, args: argparse.Namespa
     z0 = bfm.prompt.reward(task) if kind == "reward" else bfm.prompt.goal(task)
     objective = reward_objective(task) if kind == "reward" else goal_objective(goal_obs(task))
     starts = make_init(0.0, motions).sample(np.random.default_rng(1000 + seed), args.starts)
-    search = Search(generations=args.generations, population=args.population, elites=max(1, args.population // 4),
-                    seed=seed)
+    search = Search(generations=args.generations, population=args.population, seed=seed)
     t0 = time.perf_counter()
     result: Refined = refine(bfm, z0, objective, starts, steps=args.steps, search=search, num_threads=args.threads)
     wall = time.perf_counter() - t0

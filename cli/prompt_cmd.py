@@ -127,7 +127,7 @@ def _refine(bfm: Any, z0: np.ndarray, target: Any, steps: int, seed: int, genera
     from fbcpr.refine import Search, goal_objective, refine, reward_objective
     from humanoid_env.inits import DefaultInit
 
-    search = Search(generations=generations, population=population, elites=max(1, population // 4), seed=seed)
+    search = Search(generations=generations, population=population, seed=seed)
     objective = reward_objective(target) if isinstance(target, str) else goal_objective(target)
     starts = DefaultInit().sample(np.random.default_rng(seed + 1), n_starts)
     with progress() as bar:

@@ -46,10 +46,14 @@ class Search:
 
     generations: int = 10
     population: int = 16
-    elites: int = 4
+    elites: int | None = None  # None: the best quarter of the population (at least one)
     sigma: float = 0.3
     decay: float = 0.9
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.elites is None and isinstance(self.population, (int, np.integer)):
+            self.elites = max(1, int(self.population) // 4)
 
     def check(self) -> None:
         """Every setting in range, named when not."""
@@ -135,10 +139,11 @@ def cross_entropy(score: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, sea
 def rollout_score(policy: Policy, objective: Objective, starts: tuple[np.ndarray, np.ndarray], steps: int,
                   num_threads: int | None = None, on_step: Callable[[int], None] | None = None
                   ) -> Callable[[np.ndarray], np.ndarray]:
-    """score(zs (K, d)) -> (K,): each z rolled out from every start (one batch of K x S envs), the mean per-step
-    objective over steps and starts; an env whose simulation diverges scores 0 for the rest of its episode.
-    `on_step(K)` is called after every batched step (for a progress bar counting candidate-steps)."""
-    from humanoid_env.vector import VectorHumanoidEnv
+    """score(zs (K, d)) -> (K,): each z rolled out from every start (one batch of K x S envs, the evaluation
+    runner's rollouts), the mean per-step objective over steps and starts; an env whose simulation diverges
+    scores 0 for the rest of its episode. `on_step(K)` is called after every batched step (for a progress bar
+    counting candidate-steps)."""
+    from fbcpr.evaluation.runner import Rollouts
 
     qpos, qvel = (np.asarray(x, dtype=np.float64) for x in starts)
     if qpos.ndim != 2 or qvel.ndim != 2 or len(qpos) != len(qvel) or len(qpos) < 1:
@@ -150,23 +155,19 @@ def rollout_score(policy: Policy, objective: Objective, starts: tuple[np.ndarray
 
     def score(zs: np.ndarray) -> np.ndarray:
         k = len(zs)
-        n = k * n_starts
-        env = VectorHumanoidEnv(n, max_episode_steps=steps, num_threads=num_threads,
-                                action_mapping=policy.action_mapping)
+        z = np.repeat(np.asarray(zs, dtype=np.float32), n_starts, axis=0)
+        total = np.zeros(k * n_starts)
+
+        def add(t: int, info: dict[str, Any], alive: np.ndarray) -> None:
+            value = objective(info["final_obs"], info["final_qpos"], info["final_qvel"])
+            total[:] += np.where(alive, np.asarray(value, dtype=np.float64), 0.0)
+
+        roll = Rollouts(policy, k * n_starts, steps, num_threads)
         try:
-            obs, _ = env.reset(options={"qpos": np.tile(qpos, (k, 1)), "qvel": np.tile(qvel, (k, 1))})
-            z = np.repeat(np.asarray(zs, dtype=np.float32), n_starts, axis=0)
-            total, alive = np.zeros(n), np.ones(n, bool)
-            for _ in range(steps):
-                obs, _, _, _, info = env.step(np.asarray(policy.act(obs, z, mean=True), dtype=np.float32))
-                alive &= ~info["diverged"]
-                value = np.asarray(objective(info["final_obs"], info["final_qpos"], info["final_qvel"]),
-                                   dtype=np.float64)
-                total += np.where(alive, value, 0.0)
-                if on_step is not None:
-                    on_step(k)
+            roll.run(policy, lambda t: z, np.tile(qpos, (k, 1)), np.tile(qvel, (k, 1)), add,
+                     (lambda: on_step(k)) if on_step is not None else (lambda: None))
         finally:
-            env.close()
+            roll.close()
         return total.reshape(k, n_starts).mean(1) / steps
 
     return score

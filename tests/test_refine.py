@@ -6,11 +6,9 @@ import pytest
 import torch
 from rich.progress import Progress
 
-from conftest import humanoid_states
+from conftest import tiny_humanoid_checkpoint
 from fbcpr.bfm import BFM
-from fbcpr.config import config_from_dict
 from fbcpr.evaluation.runner import reward_suite
-from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.prompt import PromptError
 from fbcpr.refine import Search, cross_entropy, goal_objective, project, refine, reward_objective, rollout_score
 from humanoid_env.inits import DefaultInit
@@ -21,14 +19,8 @@ D = 16
 
 
 @pytest.fixture(scope="module")
-def bfm() -> BFM:
-    torch.manual_seed(0)
-    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
-                            "agent": {"seq_length": 4, "batch_size": 8}})
-    model = FBCPRModel(cfg.model)
-    states = humanoid_states(64, seed=1)
-    model.obs_normalizer.update(torch.as_tensor(states["next_obs"]))
-    return BFM(model, cfg, reward_buffer=states)
+def bfm(tmp_path_factory) -> BFM:
+    return BFM.load(tiny_humanoid_checkpoint(tmp_path_factory.mktemp("refine"), "tiny", seed=0))
 
 
 def _target_and_start(seed: int) -> tuple[np.ndarray, np.ndarray]:

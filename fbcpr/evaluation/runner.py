@@ -36,8 +36,8 @@ def _batch_z(z: np.ndarray, n: int) -> np.ndarray:
     return np.broadcast_to(z, (n, z.shape[0])).copy()
 
 
-class _Rollouts:
-    """One batched env reused for every task of a suite."""
+class Rollouts:
+    """One batched env reused for every task of a suite (and by prompt refinement for its candidates)."""
 
     def __init__(self, agent: Agent, num_envs: int, steps: int, num_threads: int | None) -> None:
         from humanoid_env.vector import VectorHumanoidEnv
@@ -47,15 +47,16 @@ class _Rollouts:
         self.num_envs, self.steps = num_envs, steps
 
     def run(self, agent: Agent, z_at: Callable[[int], np.ndarray], qpos: np.ndarray, qvel: np.ndarray,
-            on_step: Callable[[int, np.ndarray, np.ndarray], None], advance: Callable[[], None]) -> None:
-        """Roll out from (qpos, qvel); `on_step(t, next_obs, alive)` sees every next state."""
+            on_step: Callable[[int, dict[str, Any], np.ndarray], None], advance: Callable[[], None]) -> None:
+        """Roll out from (qpos, qvel); `on_step(t, info, alive)` sees every next state, in the step's
+        `info["final_obs"]`, `info["final_qpos"]` and `info["final_qvel"]`."""
         obs, _ = self.env.reset(options={"qpos": qpos, "qvel": qvel})
         alive = np.ones(self.num_envs, bool)
         for t in range(self.steps):
             action = np.asarray(agent.act(obs, z_at(t), mean=True), dtype=np.float32)
             obs, _, _, _, info = self.env.step(action)
             alive &= ~info["diverged"]
-            on_step(t, info["final_obs"], alive)
+            on_step(t, info, alive)
             advance()
 
     def close(self) -> None:
@@ -107,7 +108,7 @@ def reward_suite(agent: Agent, tasks: Sequence[str], episodes: int, init: tuple[
 
     fns = [get_reward(t) for t in tasks]  # fail on a bad name before any simulation
     bar = progress.add_task("reward", total=len(tasks) * steps)
-    roll = _Rollouts(agent, episodes, steps, num_threads)
+    roll = Rollouts(agent, episodes, steps, num_threads)
     out: dict[str, Any] = {}
     try:
         for task, fn in zip(tasks, fns):
@@ -118,8 +119,8 @@ def reward_suite(agent: Agent, tasks: Sequence[str], episodes: int, init: tuple[
             z = _batch_z(z1, episodes)
             ret = np.zeros(episodes)
 
-            def score(t: int, nxt: np.ndarray, alive: np.ndarray) -> None:
-                ret[:] += np.where(alive, fn(nxt), 0.0)
+            def score(t: int, info: dict[str, Any], alive: np.ndarray) -> None:
+                ret[:] += np.where(alive, fn(info["final_obs"]), 0.0)
 
             roll.run(agent, lambda t: z, *init, score, lambda: progress.advance(bar))
             out[task] = {"category": task_category(task), "return_mean": float(ret.mean()),
@@ -139,7 +140,7 @@ def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np
 
     targets = [goal_obs(g) for g in goals]
     bar = progress.add_task("goal", total=len(goals) * steps)
-    roll = _Rollouts(agent, episodes, steps, num_threads)
+    roll = Rollouts(agent, episodes, steps, num_threads)
     out: dict[str, Any] = {}
     try:
         for name, goal in zip(goals, targets):
@@ -150,8 +151,8 @@ def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np
             z = _batch_z(z1, episodes)
             dist = np.empty((episodes, steps))
 
-            def measure(t: int, nxt: np.ndarray, alive: np.ndarray) -> None:
-                dist[:, t] = np.where(alive, d_smpl(nxt, goal), np.inf)
+            def measure(t: int, info: dict[str, Any], alive: np.ndarray) -> None:
+                dist[:, t] = np.where(alive, d_smpl(info["final_obs"], goal), np.inf)
 
             roll.run(agent, lambda t: z, *init, measure, lambda: progress.advance(bar))
             finite = np.where(np.isfinite(dist), dist, np.nan)
@@ -194,11 +195,11 @@ def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch
         def z_at(t: int) -> np.ndarray:
             return np.stack([z[min(t, len(z) - 1)] for z in zs])
 
-        def record(t: int, nxt: np.ndarray, alive: np.ndarray) -> None:
-            traj[:, t + 1] = nxt
+        def record(t: int, info: dict[str, Any], alive: np.ndarray) -> None:
+            traj[:, t + 1] = info["final_obs"]
             dead[:] |= ~alive & (t < lengths)
 
-        roll = _Rollouts(agent, len(group), steps, num_threads)
+        roll = Rollouts(agent, len(group), steps, num_threads)
         try:
             qpos = np.stack([c.qpos[0] for c in group])
             qvel = np.stack([c.qvel[0] for c in group])
