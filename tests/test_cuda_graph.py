@@ -41,7 +41,8 @@ def syncs_of(fn) -> set[str]:
     return rec.ops & HOST_SYNCS
 
 
-@pytest.mark.parametrize("options", [{}, {"action_penalty": 0.5}])
+@pytest.mark.parametrize("options", [{}, {"action_penalty": 0.5}, {"anchor_actor": 2.0},
+                                     {"freeze_backward": True, "anchor_actor": 2.0}])
 def test_the_captured_step_never_waits_on_the_host(options):
     agent = make_agent(**options)
     batch, windows = make_batch(agent)
