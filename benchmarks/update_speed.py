@@ -139,37 +139,45 @@ def time_update(agent: FBCPRAgent, batch: dict, windows: torch.Tensor, device: s
 
 
 def twin_differences(a: FBCPRAgent, b: FBCPRAgent, preset: str, device: str,
-                     updates: int) -> tuple[float, float, float]:
+                     updates: int) -> tuple[tuple[float, float, float], list[tuple[str, float]]]:
     """Two agents updated on the same batches (a new one each update), with exploration actions drawn from their
     generators between updates, as in training: the largest relative difference of the metrics over all updates, the
-    largest difference of the actions, and the relative norm of the difference of all weights at the end."""
-    metric_diff = action_diff = 0.0
+    largest difference of the actions, and the relative norm of the difference of all weights at the end; then, per
+    update, the metric that differs most and by how much (rounding grows slowly from the first update on, a graph
+    that replays the wrong thing jumps at its first replay)."""
+    per_update: list[tuple[str, float]] = []
+    action_diff = 0.0
     for step in range(updates):
         batch, windows = draw(SIZES[preset], a.z_dim, step)
         m_a, m_b = a.update(batch, windows), b.update(batch, windows)
-        metric_diff = max(metric_diff, max(abs(m_a[k] - m_b[k]) / max(abs(m_a[k]), 1e-6) for k in m_a))
+        per_update.append(max(((k, abs(m_a[k] - m_b[k]) / max(abs(m_a[k]), 1e-6)) for k in m_a),
+                              key=lambda kv: kv[1]))
         obs, z = batch["obs"][:64].to(device), batch["z"][:64].to(device)
         action_diff = max(action_diff, float((a.act(obs, z) - b.act(obs, z)).abs().max()))
     with torch.no_grad():
         p = torch.cat([x.flatten() for x in a.model.parameters()])
         q = torch.cat([x.flatten() for x in b.model.parameters()])
         weights = float((p - q).norm() / p.norm().clamp_min(1e-12))
-    return metric_diff, action_diff, weights
+    return (max(d for _, d in per_update), action_diff, weights), per_update
 
 
 def graph_agreement(preset: str, device: str = "cuda", updates: int = 12) -> str:
     """A graphed agent against an eager one from the same seed, judged against two eager twins from that seed (the
-    device's own nondeterminism). (Off CUDA every agent runs eagerly, so every difference is 0.)"""
+    device's own nondeterminism), with the graphed agent's largest metric difference per update. (Off CUDA every
+    agent runs eagerly, so every difference is 0.)"""
     eager, graphed = make(preset, device, False)[0], make(preset, device, False, graph=True)[0]
-    got = twin_differences(eager, graphed, preset, device, updates)
-    floor = twin_differences(make(preset, device, False)[0], make(preset, device, False)[0], preset, device, updates)
+    got, per_update = twin_differences(eager, graphed, preset, device, updates)
+    floor = twin_differences(make(preset, device, False)[0], make(preset, device, False)[0], preset, device,
+                             updates)[0]
     step = graphed._step
     state = ("eager (not CUDA)" if not graphed.graphed else "captured" if step.captured
              else f"NOT captured: {step.failure}")
     agree = all(g < max(AGREE, FLOOR_FACTOR * f) for g, f in zip(got, floor))
+    growth = ", ".join(f"{i + 1}: {k} {d:.1e}" for i, (k, d) in enumerate(per_update))
     return (f"{preset}: {state}; {'agree' if agree else 'DIFFER'}; after {updates} updates, graphed vs eager "
             f"(eager twins): metrics max rel diff {got[0]:.2e} ({floor[0]:.2e}), actions max abs diff {got[1]:.2e} "
-            f"({floor[1]:.2e}), weights rel norm diff {got[2]:.2e} ({floor[2]:.2e})")
+            f"({floor[1]:.2e}), weights rel norm diff {got[2]:.2e} ({floor[2]:.2e}); per update, the metric that "
+            f"differs most: {growth}")
 
 
 def count_flops(preset: str) -> float:

@@ -110,3 +110,5 @@ def test_the_lease_agreement_check_runs_and_finds_eager_twins_equal():
     line = update_speed.graph_agreement("tiny", "cpu", updates=2)
     assert line.startswith("tiny: eager (not CUDA); agree; after 2 updates")
     assert line.count("0.00e+00") == 6
+    growth = line.split("per update, the metric that differs most: ")[1].split(", ")
+    assert [g.split(":")[0] for g in growth] == ["1", "2"] and all(g.endswith(" 0.0e+00") for g in growth)
