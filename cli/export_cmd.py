@@ -1,5 +1,6 @@
 """`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample of states),
-optionally with its weights interpolated towards the model it was trained on from (`--interpolate BASE`)."""
+optionally with its weights interpolated towards the model it was trained on from (`--interpolate BASE`), and with
+another model's reward states (`--reward-states-from MODEL`)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -24,17 +25,22 @@ def export_command(
                                               "BASE is the model CHECKPOINT's run continued from (WiSE-FT)."),
     alpha: float = typer.Option(None, "--alpha",
                                 help="Weight of CHECKPOINT with --interpolate (0: BASE, 1: it; default 0.5)."),
+    reward_states_from: str = typer.Option(None, "--reward-states-from", metavar="MODEL",
+                                           help="Take the reward-prompt states from MODEL (e.g. 'pretrained') "
+                                                "instead of CHECKPOINT's own replay states."),
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.bfm import BFM
     from fbcpr.errors import InputError
-    from fbcpr.interpolation import interpolate
+    from fbcpr.interpolation import interpolate, with_reward_states
 
     if alpha is not None and interpolate_from is None:
         raise InputError("--alpha: only means something with --interpolate BASE")
     bfm = BFM.load(checkpoint)
     if interpolate_from is not None:
         bfm = interpolate(BFM.load(interpolate_from), bfm, 0.5 if alpha is None else alpha)
+    if reward_states_from is not None:
+        bfm = with_reward_states(bfm, BFM.load(reward_states_from))
     path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
     sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
     for name, size in sizes.items():

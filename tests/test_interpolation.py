@@ -13,7 +13,7 @@ from fbcpr import BFM
 from fbcpr.checkpoint import CheckpointError
 from fbcpr.cli.app import app
 from fbcpr.errors import InputError
-from fbcpr.interpolation import interpolate
+from fbcpr.interpolation import interpolate, with_reward_states
 
 torch.set_num_threads(1)
 
@@ -92,3 +92,27 @@ def test_export_alpha_without_interpolate_is_refused(pair, tmp_path):
     assert res.exit_code != 0
     assert "--interpolate" in res.output and "Traceback" not in res.output
     assert not (tmp_path / "y").exists()
+
+
+def test_export_reward_states_from_keeps_the_weights_and_takes_the_donors_states(pair, tmp_path):
+    out = tmp_path / "donated"
+    res = CliRunner().invoke(app, ["export", str(pair[1]), str(out), "--reward-states-from", str(pair[0]),
+                                   "--reward-samples", "16", "--full"])
+    assert res.exit_code == 0, res.output
+    got, tuned, donor = BFM.load(out), BFM.load(pair[1]), BFM.load(pair[0])
+    for key, value in _weights(tuned).items():
+        torch.testing.assert_close(_weights(got)[key], value, rtol=0, atol=0)
+    donor_rows = {row.tobytes() for row in donor.reward_buffer["qpos"].astype(np.float32)}
+    tuned_rows = {row.tobytes() for row in tuned.reward_buffer["qpos"].astype(np.float32)}
+    got_rows = [row.tobytes() for row in got.reward_buffer["qpos"].astype(np.float32)]
+    assert len(got_rows) == 16 and all(r in donor_rows and r not in tuned_rows for r in got_rows)
+
+
+def test_reward_states_from_a_model_of_another_action_mapping_are_refused(pair, tmp_path):
+    odd = BFM.load(tiny_humanoid_checkpoint(tmp_path, "odd", seed=2, mapping="mid"))
+    with pytest.raises(CheckpointError, match="action mapping"):
+        with_reward_states(BFM.load(pair[1]), odd)
+    res = CliRunner().invoke(app, ["export", str(pair[1]), str(tmp_path / "z"), "--reward-states-from",
+                                   str(tmp_path / "odd")])
+    assert res.exit_code != 0 and "action mapping" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "z").exists()
