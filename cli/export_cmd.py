@@ -25,9 +25,10 @@ def export_command(
                                               "BASE is the model CHECKPOINT's run continued from (WiSE-FT)."),
     alpha: float = typer.Option(None, "--alpha",
                                 help="Weight of CHECKPOINT with --interpolate (0: BASE, 1: it; default 0.5)."),
-    reward_states_from: str = typer.Option(None, "--reward-states-from", metavar="MODEL",
-                                           help="Take the reward-prompt states from MODEL (e.g. 'pretrained') "
-                                                "instead of CHECKPOINT's own replay states."),
+    reward_states_from: list[str] = typer.Option(None, "--reward-states-from", metavar="MODEL",
+                                                 help="Take the reward-prompt states from MODEL (e.g. 'pretrained') "
+                                                      "instead of CHECKPOINT's own replay states; repeat it to pool "
+                                                      "several models' states (then --reward-samples subsamples)."),
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.bfm import BFM
@@ -39,8 +40,8 @@ def export_command(
     bfm = BFM.load(checkpoint)
     if interpolate_from is not None:
         bfm = interpolate(BFM.load(interpolate_from), bfm, 0.5 if alpha is None else alpha)
-    if reward_states_from is not None:
-        bfm = with_reward_states(bfm, BFM.load(reward_states_from))
+    if reward_states_from:
+        bfm = with_reward_states(bfm, [BFM.load(src) for src in reward_states_from])
     path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
     sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
     for name, size in sizes.items():

@@ -8,17 +8,21 @@ two independent runs have unrelated weights and their average is noise. docs/res
 
 A continuation's reward states are its own last replay states, and prompts inferred from them can be worse than
 from its base's: section 41's average of six continuations stood 5.5 s under the stand prompt with them and the
-whole 10 s with the shipped model's. `with_reward_states` pairs one model's weights with another's states.
+whole 10 s with the shipped model's. `with_reward_states` pairs one model's weights with the states of one or more
+others.
 """
 from __future__ import annotations
 
 import copy
 import math
+from typing import Sequence
+
+import numpy as np
 
 import torch
 
 from fbcpr.bfm import BFM, check_compatible
-from fbcpr.checkpoint import CheckpointError
+from fbcpr.checkpoint import REWARD_KEYS, CheckpointError
 from fbcpr.errors import InputError
 
 
@@ -40,12 +44,20 @@ def interpolate(base: BFM, tuned: BFM, alpha: float) -> BFM:
                source=f"interpolate({base.source}, {tuned.source}, alpha={alpha:g})")
 
 
-def with_reward_states(model: BFM, donor: BFM) -> BFM:
-    """`model` with `donor`'s reward-inference states, for prompts inferred from the states the donor's were.
+def with_reward_states(model: BFM, donors: Sequence[BFM]) -> BFM:
+    """`model` with the reward-inference states of `donors`, all of them in one buffer, for prompts inferred from
+    the states the donors' were (a later export can subsample it).
 
-    Raises CheckpointError when the two differ in env, action mapping or z size, or the donor has no states."""
-    check_compatible(model, donor, f"take the reward states of {donor.source} for {model.source}", same_networks=False)
-    if donor.reward_buffer is None:
-        raise CheckpointError(f"{donor.source} has no reward-inference states to give")
-    return BFM(model.model, model.config, reward_buffer=donor.reward_buffer,
-               source=f"{model.source} with the reward states of {donor.source}")
+    Raises InputError for no donor, and CheckpointError when a donor differs from `model` in env, action mapping or
+    z size, or has no states."""
+    if not donors:
+        raise InputError("with_reward_states: give at least one model to take the reward states of")
+    for donor in donors:
+        check_compatible(model, donor, f"take the reward states of {donor.source} for {model.source}",
+                         same_networks=False)
+        if donor.reward_buffer is None:
+            raise CheckpointError(f"{donor.source} has no reward-inference states to give")
+    buffer = {k: np.concatenate([np.asarray(d.reward_buffer[k], np.float32) for d in donors]) for k in REWARD_KEYS}
+    names = " and ".join(str(d.source) for d in donors)
+    return BFM(model.model, model.config, reward_buffer=buffer,
+               source=f"{model.source} with the reward states of {names}")

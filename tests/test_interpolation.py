@@ -111,8 +111,18 @@ def test_export_reward_states_from_keeps_the_weights_and_takes_the_donors_states
 def test_reward_states_from_a_model_of_another_action_mapping_are_refused(pair, tmp_path):
     odd = BFM.load(tiny_humanoid_checkpoint(tmp_path, "odd", seed=2, mapping="mid"))
     with pytest.raises(CheckpointError, match="action mapping"):
-        with_reward_states(BFM.load(pair[1]), odd)
+        with_reward_states(BFM.load(pair[1]), [odd])
     res = CliRunner().invoke(app, ["export", str(pair[1]), str(tmp_path / "z"), "--reward-states-from",
                                    str(tmp_path / "odd")])
     assert res.exit_code != 0 and "action mapping" in res.output and "Traceback" not in res.output
     assert not (tmp_path / "z").exists()
+
+
+def test_reward_states_of_several_models_are_pooled(pair):
+    base, tuned = BFM.load(pair[0]), BFM.load(pair[1])
+    pooled = with_reward_states(tuned, [base, tuned]).reward_buffer
+    for key in ("next_obs", "qpos", "qvel"):
+        expected = np.concatenate([base.reward_buffer[key], tuned.reward_buffer[key]]).astype(np.float32)
+        np.testing.assert_array_equal(pooled[key], expected)
+    with pytest.raises(InputError, match="at least one"):
+        with_reward_states(tuned, [])
