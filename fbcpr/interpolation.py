@@ -18,7 +18,6 @@ import math
 from typing import Sequence
 
 import numpy as np
-
 import torch
 
 from fbcpr.bfm import BFM, check_compatible
