@@ -1,0 +1,51 @@
+"""A model's reward states from its own rollouts (configs/own-states.yaml): a warm start whose warm-up outlasts the
+run rolls the loaded policy out, makes no update, and saves a reward sample of those rollouts' states."""
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from fbcpr.checkpoint import latest_checkpoint, load_checkpoint
+from fbcpr.config import config_from_dict, load_config
+from fbcpr.trainer import Trainer
+
+torch.set_num_threads(1)
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def toy(**train):
+    return config_from_dict({
+        "model": {"preset": "tiny", "actor_std": 0.05}, "agent": {"batch_size": 32},
+        "env": {"name": "toy", "max_episode_steps": 30},
+        "train": {"total_env_steps": 100_000, "num_envs": 4, "warmup_steps": 40, "rollout_steps": 20,
+                  "updates_per_rollout": 2, "buffer_capacity": 1000, "priority_every": 0, "eval_every": 0,
+                  "checkpoint_every": 0, "log_every": 40, "reward_buffer_size": 60, "torch_threads": 1, **train}})
+
+
+def test_a_warm_up_past_the_end_rolls_the_loaded_policy_out_and_samples_its_states(tmp_path):
+    Trainer(toy(), tmp_path / "base", progress=False).run(max_env_steps=200)
+    base = load_checkpoint(latest_checkpoint(tmp_path / "base" / "checkpoints"))
+    run = Trainer(toy(total_env_steps=120, warmup_steps=1_000, save_buffer=True), tmp_path / "own", progress=False,
+                  init_from=base.path)
+    summary = run.run()
+    assert summary["updates"] == 0 and summary["env_steps"] == 120
+    own = load_checkpoint(latest_checkpoint(tmp_path / "own" / "checkpoints"))
+    weights, loaded = own.model.state_dict(), base.model.state_dict()
+    assert all(torch.equal(weights[k], loaded[k]) for k in loaded)          # no update moved them
+    # the loaded policy acted (its mean plus the 0.05 exploration noise), not the uniform warm-up of a fresh run
+    rows = run.buffer.data
+    obs, z, action = (torch.as_tensor(np.asarray(rows[k][:120])) for k in ("obs", "z", "action"))
+    mean = base.model.act(obs, z, mean=True)
+    assert (action - mean).abs().max() < 0.3
+    # every state of the saved sample is one of these rollouts', none of the base's own sample
+    sample, theirs = own.reward_buffer()["next_obs"], base.reward_buffer()["next_obs"]
+    assert len(sample) == 60
+    rolled = {tuple(r) for r in np.asarray(rows["next_obs"][:120]).tolist()}
+    assert all(tuple(r) in rolled for r in sample.tolist())
+    assert not {tuple(r) for r in theirs.tolist()} & {tuple(r) for r in sample.tolist()}
+
+
+def test_the_shipped_recipe_makes_no_update():
+    cfg = load_config(CONFIGS / "own-states.yaml")
+    assert cfg.train.warmup_steps > cfg.train.total_env_steps
+    assert cfg.train.reward_buffer_size <= cfg.train.total_env_steps <= cfg.train.buffer_capacity
