@@ -77,6 +77,7 @@ def test_export_interpolate_writes_the_mixed_weights(pair, tmp_path):
     for key in expected:
         torch.testing.assert_close(got[key], expected[key], rtol=1e-6, atol=1e-6)
     assert len(BFM.load(out).reward_buffer["qpos"]) == 16
+    assert "configs/own-states.yaml" in res.output   # the mix's states are borrowed: how to make its own
 
 
 def test_export_interpolate_with_a_bad_alpha_is_a_clear_error(pair, tmp_path):
@@ -106,6 +107,7 @@ def test_export_reward_states_from_keeps_the_weights_and_takes_the_donors_states
     tuned_rows = {row.tobytes() for row in tuned.reward_buffer["qpos"].astype(np.float32)}
     got_rows = [row.tobytes() for row in got.reward_buffer["qpos"].astype(np.float32)]
     assert len(got_rows) == 16 and all(r in donor_rows and r not in tuned_rows for r in got_rows)
+    assert "own-states" not in res.output            # states chosen: no hint
 
 
 def test_reward_states_from_a_model_of_another_action_mapping_are_refused(pair, tmp_path):
