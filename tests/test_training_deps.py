@@ -42,11 +42,13 @@ for run in ("no_scipy", "scipy"):
         Trainer(cfg, f"{sys.argv[1]}/{run}", progress=False).run()
     out[run] = [str(w.message) for w in caught]
     blocked.discard("scipy")
-# The shipped model, which a lease continues (--init-from pretrained): its saved config names evaluation tasks,
-# whose check must not need dm_control either.
+# The shipped model, which a lease continues (--init-from pretrained), and a shipped config that names evaluation
+# tasks, whose check on loading must not need dm_control either.
 from fbcpr.bfm import resolve_checkpoint
 from fbcpr.checkpoint import load_checkpoint
-out["pretrained_eval_tasks"] = load_checkpoint(resolve_checkpoint("pretrained"), "cpu").config.train.eval_tasks
+from fbcpr.config import find_config, load_config
+out["pretrained_z_dim"] = load_checkpoint(resolve_checkpoint("pretrained"), "cpu").config.model.z_dim
+out["config_eval_tasks"] = load_config(find_config("cpu")).train.eval_tasks
 out["attempts"] = sorted(set(attempts))
 print(json.dumps(out))
 """
@@ -66,7 +68,8 @@ def test_training_path_needs_no_dm_control_pot_mink_tensorboard_scipy(tmp_path, 
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert not set(out["attempts"]) & set(NEVER), out["attempts"]
     assert {"ot", "tensorboard", "scipy"} <= set(out["attempts"])  # the blocker really was in the way
-    assert "move-ego-0-2" in out["pretrained_eval_tasks"]  # the reward tasks were checked, without dm_control
+    assert out["pretrained_z_dim"] > 0                     # the shipped model loads, without dm_control
+    assert "move-ego-0-2" in out["config_eval_tasks"]      # the reward tasks were checked, without dm_control
     for run in ("no_scipy", "scipy"):
         assert sum("tensorboard is not installed" in w for w in out[run]) == 1, out[run]
         assert (tmp_path / run / "checkpoints" / "latest").exists()
