@@ -1,6 +1,7 @@
 """`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample of states),
 optionally with its weights interpolated towards the model it was trained on from (`--interpolate BASE`), and with
-another model's reward states (`--reward-states-from MODEL`)."""
+another model's reward states (`--reward-states-from MODEL`), and with the named tasks' reward prompts inferred from
+all of those states (`--store-prompts`)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -29,11 +30,18 @@ def export_command(
                                                  help="Take the reward-prompt states from MODEL (e.g. 'pretrained') "
                                                       "instead of CHECKPOINT's own replay states; repeat it to pool "
                                                       "several models' states (then --reward-samples subsamples)."),
+    store_prompts: bool = typer.Option(False, "--store-prompts/--no-store-prompts",
+                                       help="Infer the reward prompts of the named tasks (fbcpr tasks) from every "
+                                            "reward state before --reward-samples subsamples them, and store them "
+                                            "for the prompts to use: z's that depend less on which states were "
+                                            "kept (docs/usage.md)."),
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.bfm import BFM
     from fbcpr.errors import InputError
     from fbcpr.interpolation import interpolate, with_reward_states
+    from fbcpr.reward_prompts import infer_reward_prompts
+    from humanoid_env.tasks.rewards import TASKS
 
     if alpha is not None and interpolate_from is None:
         raise InputError("--alpha: only means something with --interpolate BASE")
@@ -42,6 +50,15 @@ def export_command(
         bfm = interpolate(BFM.load(interpolate_from), bfm, 0.5 if alpha is None else alpha)
     if reward_states_from:
         bfm = with_reward_states(bfm, [BFM.load(src) for src in reward_states_from])
+    if store_prompts:
+        if bfm.env_name != "humanoid":
+            raise InputError(f"--store-prompts: the named tasks are the humanoid's, and {checkpoint} was trained on "
+                             f"{bfm.env_name!r}")
+        with console.status(f"inferring {len(TASKS)} reward prompts from every reward state"):
+            bfm.reward_prompts = infer_reward_prompts(bfm, TASKS)
+        left_out = [t for t in TASKS if t not in bfm.reward_prompts.z]
+        console.print(f"inferred {len(bfm.reward_prompts.z)} reward prompts from {bfm.reward_prompts.states:,} states"
+                      + (f"; left out (they pay nothing on these states): {', '.join(left_out)}" if left_out else ""))
     path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
     sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
     for name, size in sizes.items():

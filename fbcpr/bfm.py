@@ -22,6 +22,7 @@ from fbcpr.checkpoint import (
     MANIFEST_FILE,
     MODEL_FILE,
     POINTERS,
+    PROMPTS_FILE,
     REWARD_FILE,
     REWARD_KEYS,
     Checkpoint,
@@ -36,11 +37,12 @@ from fbcpr.envs import inconsistent_rows
 from fbcpr.errors import InputError
 from fbcpr.fb_cpr.model import FBCPRModel
 from fbcpr.prompt import Prompt
+from fbcpr.reward_prompts import RewardPrompts, load_reward_prompts, weights_digest
 
 ArrayLike = TypeVar("ArrayLike", torch.Tensor, np.ndarray)
 
 #: Files an inference checkpoint needs (the trainer state and the full replay buffer are never fetched).
-HUB_FILES = [MODEL_FILE, CONFIG_FILE, MANIFEST_FILE, REWARD_FILE, "README.md"]
+HUB_FILES = [MODEL_FILE, CONFIG_FILE, MANIFEST_FILE, REWARD_FILE, PROMPTS_FILE, "README.md"]
 _REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[\w.-]+$")
 _CHUNK = 16_384
 #: The shipped inference checkpoint; "pretrained" names it wherever a checkpoint path is accepted.
@@ -59,6 +61,7 @@ class BFM:
         metrics: dict[str, float] | None = None,
         source: str | None = None,
         checkpoint: Checkpoint | None = None,
+        reward_prompts: RewardPrompts | None = None,
     ) -> None:
         self.model = model.eval()
         self.config = config
@@ -66,6 +69,9 @@ class BFM:
         self.source = source
         self._reward_buffer = reward_buffer
         self._checkpoint = checkpoint  # lazy access to reward_buffer.safetensors
+        stored = checkpoint.reward_prompts() if checkpoint is not None and reward_prompts is None else None
+        #: z's of named tasks inferred at export from more states than the checkpoint keeps (`fbcpr.reward_prompts`)
+        self.reward_prompts = reward_prompts if stored is None else load_reward_prompts(*stored, model, checkpoint.path)
         self._prompt: Prompt | None = None
         self._samples: tuple[tuple[int, int], dict[str, np.ndarray], torch.Tensor] | None = None
         self._buffer_checked = False
@@ -252,15 +258,18 @@ class BFM:
         `reward_samples` keeps a seeded subsample of the reward buffer, `half` stores it as float16 and
         `states_only` drops its observations, which loading rebuilds from the states: the compact form a
         checkpoint that ships with a package or an app needs (docs/results.md measures what a smaller buffer
-        costs in prompt quality)."""
+        costs in prompt quality). Stored reward prompts are written too, unless the weights changed since."""
         buf = self.reward_buffer
         if buf is not None and reward_samples is not None:
             if reward_samples < 1:
                 raise InputError(f"reward_samples must be >= 1, got {reward_samples}")
             buf = self.reward_samples(reward_samples, seed=0)[0]
         cfg = portable_config(self.config) if isinstance(self.config, Config) else self.config
+        prompts = self.reward_prompts  # dropped if the weights changed since they were inferred
+        keep = prompts is not None and prompts.digest == weights_digest(self.model)
         return save_checkpoint(path, self.model, cfg, reward_buffer=buf,
-                               reward_dtype=torch.float16 if half else torch.float32, reward_obs=not states_only)
+                               reward_dtype=torch.float16 if half else torch.float32, reward_obs=not states_only,
+                               reward_prompts=prompts.to_tensors() if keep else None)
 
     def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None, repo_id: str | None = None) -> Path:
         """The folder `push_to_hub` uploads: an inference checkpoint plus a README.md model card."""

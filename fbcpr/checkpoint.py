@@ -7,6 +7,8 @@ Layout of a checkpoint directory:
     trainer_state.safetensors   optional: target nets, optimizer moments; JSON scalars/counters/RNG in its header
     reward_buffer.safetensors   optional: next_obs, qpos, qvel subsample for reward prompts (exports may store
                                 the states alone: next_obs is rebuilt from them on load, `fbcpr.envs.state_observer`)
+    reward_prompts.safetensors  optional: the reward prompts (z) of the named tasks, inferred at export from more
+                                states than reward_buffer keeps (`fbcpr.reward_prompts`)
     replay_buffer.safetensors   optional: the whole replay buffer (exact resume)
 
 `save_checkpoint` writes everything into a temporary sibling directory and moves it into place with
@@ -43,6 +45,7 @@ FORMAT = "fbcpr-checkpoint"
 FORMAT_VERSION = 1
 MODEL_FILE, CONFIG_FILE, MANIFEST_FILE = "model.safetensors", "config.yaml", "manifest.json"
 TRAINER_FILE, REWARD_FILE, REPLAY_FILE = "trainer_state.safetensors", "reward_buffer.safetensors", "replay_buffer.safetensors"
+PROMPTS_FILE = "reward_prompts.safetensors"
 REWARD_KEYS = ("next_obs", "qpos", "qvel")
 STATE_KEYS = ("qpos", "qvel")
 #: Most states a states-only reward sample may hold: loading rebuilds each one's observation (~25 µs a state).
@@ -108,6 +111,11 @@ class Checkpoint:
             return {"next_obs": observer(buf["qpos"], buf["qvel"]), **buf}
         except ValueError as e:  # a state of the wrong width for the env
             raise CheckpointError(f"{self.path / REWARD_FILE}: {e}") from None
+
+    def reward_prompts(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]] | None:
+        """(task name -> z, metadata) of reward_prompts.safetensors, or None if absent; `fbcpr.reward_prompts`
+        checks them against the model."""
+        return read_tensors(self.path, PROMPTS_FILE, self.manifest) if self.has(PROMPTS_FILE) else None
 
     def replay_buffer(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]] | None:
         return read_tensors(self.path, REPLAY_FILE, self.manifest) if self.has(REPLAY_FILE) else None
@@ -195,11 +203,13 @@ def save_checkpoint(
     replay_buffer: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
     reward_dtype: torch.dtype = torch.float32,
     reward_obs: bool = True,
+    reward_prompts: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
 ) -> Path:
     """Write a checkpoint directory at `path` atomically (replacing any checkpoint already there).
 
     `reward_dtype=torch.float16` halves the reward-inference buffer and `reward_obs=False` stores its states
-    without their observations (rebuilt on load), for checkpoints that ship."""
+    without their observations (rebuilt on load), for checkpoints that ship. `reward_prompts` is the (tensors,
+    metadata) pair of `fbcpr.reward_prompts.RewardPrompts.to_tensors`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
@@ -222,6 +232,8 @@ def save_checkpoint(
             arrays = {k: torch.as_tensor(np.asarray(reward_buffer[k])).to(reward_dtype) for k in keys}
             finite = torch.stack([torch.isfinite(v.reshape(len(v), -1)).all(1) for v in arrays.values()]).all(0)
             put(REWARD_FILE, {k: v[finite] for k, v in arrays.items()})  # one inf row would break every reward prompt
+        if reward_prompts is not None:
+            put(PROMPTS_FILE, *reward_prompts)
         if replay_buffer is not None:
             put(REPLAY_FILE, *replay_buffer)
         cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}

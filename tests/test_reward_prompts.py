@@ -1,0 +1,180 @@
+"""Reward prompts stored at export (`fbcpr.reward_prompts`, `fbcpr export --store-prompts`)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from conftest import tiny_humanoid_checkpoint
+from fbcpr import BFM
+from fbcpr.checkpoint import PROMPTS_FILE, CheckpointError, load_checkpoint, save_checkpoint
+from fbcpr.cli.app import app
+from fbcpr.interpolation import interpolate, with_reward_states
+from fbcpr.prompt import PromptError
+from fbcpr.reward_prompts import RewardPrompts, infer_reward_prompts, weights_digest
+from humanoid_env.tasks.rewards import TASKS
+
+torch.set_num_threads(1)
+ALL_STATES = 10**6  # n above the buffer size: the whole buffer, and not the stored prompt (n is not the default)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory) -> tuple[Path, Path, Path]:
+    """A model exported with 16 of its 64 pooled states kept and prompts stored from all 64."""
+    root = tmp_path_factory.mktemp("prompts")
+    model, donor = tiny_humanoid_checkpoint(root, "model", seed=0), tiny_humanoid_checkpoint(root, "donor", seed=1)
+    out = root / "export"
+    res = CliRunner().invoke(app, ["export", str(model), str(out), "--reward-states-from", str(model),
+                                   "--reward-states-from", str(donor), "--reward-samples", "16", "--full",
+                                   "--store-prompts"])
+    assert res.exit_code == 0, res.output
+    assert "from 64 states" in res.output
+    return model, donor, out
+
+
+def _cos(a: np.ndarray, b: np.ndarray) -> float:
+    return float(a @ b / np.linalg.norm(a) / np.linalg.norm(b))
+
+
+def test_a_named_prompt_is_the_one_inferred_from_every_state_not_from_the_kept_ones(exported):
+    model, donor, out = exported
+    got = BFM.load(out)
+    pooled = with_reward_states(BFM.load(model), [BFM.load(model), BFM.load(donor)])
+    assert len(got.reward_buffer["qpos"]) == 16 and got.reward_prompts.states == 64
+    stored = [t for t in TASKS if t in got.reward_prompts.z]
+    assert len(stored) >= 20
+    for task in stored:
+        z = got.prompt.reward(task)
+        np.testing.assert_allclose(z, pooled.prompt.reward(task, n=ALL_STATES), atol=1e-5)
+        assert z.dtype == np.float32 and np.isclose(np.linalg.norm(z), np.sqrt(got.z_dim), rtol=1e-4)
+    cosines = []
+    for task in stored:
+        try:  # from the 16 kept states alone
+            cosines.append(_cos(got.prompt.reward(task), got.prompt.reward(task, n=ALL_STATES)))
+        except PromptError:  # they hold no state this task pays: the stored prompt still serves it
+            continue
+    assert len(cosines) >= 10 and min(cosines) < 0.99
+
+
+def test_other_settings_a_user_reward_and_a_combined_name_use_the_kept_states(exported):
+    _, _, out = exported
+    got = BFM.load(out)
+    task = next(t for t in TASKS if t in got.reward_prompts.z)
+    plain = BFM(got.model, got.config, reward_buffer=got.reward_buffer)  # the same model and states, nothing stored
+    assert plain.reward_prompts is None
+    for kwargs in ({"temperature": 5.0}, {"method": "regression"}, {"seed": 3}, {"n": 8}):
+        np.testing.assert_allclose(got.prompt.reward(task, **kwargs), plain.prompt.reward(task, **kwargs), atol=1e-6)
+    from humanoid_env.tasks import get_reward
+
+    fn = get_reward(task)
+    np.testing.assert_allclose(got.prompt.reward(lambda *a: fn(*a)), plain.prompt.reward(task), atol=1e-6)
+    combined = f"{task}*{task}"
+    np.testing.assert_allclose(got.prompt.reward(combined), plain.prompt.reward(combined), atol=1e-6)
+
+
+def test_tasks_the_states_do_not_pay_are_left_out_and_fail_as_before(exported):
+    model, _, out = exported
+    got = BFM.load(out)
+    for task in set(TASKS) - set(got.reward_prompts.z):
+        with pytest.raises(PromptError, match="zero on all"):
+            got.prompt.reward(task)
+    with pytest.raises(PromptError, match="no-such-task"):
+        infer_reward_prompts(BFM.load(model), ["move-ego-0-0", "no-such-task"])
+
+
+def test_prompts_round_trip_and_are_dropped_when_the_weights_change(exported, tmp_path):
+    _, _, out = exported
+    got = BFM.load(out)
+    again = BFM.load(got.save(tmp_path / "again"))
+    assert again.reward_prompts.z.keys() == got.reward_prompts.z.keys()
+    for task, z in got.reward_prompts.z.items():
+        np.testing.assert_array_equal(again.reward_prompts.z[task], z)
+    with torch.no_grad():
+        next(got.model.parameters()).add_(0.01)
+    changed = got.save(tmp_path / "changed")
+    assert not (changed / PROMPTS_FILE).exists() and BFM.load(changed).reward_prompts is None
+    assert interpolate(BFM.load(out), BFM.load(out), 0.5).reward_prompts is None   # new weights, none carried
+    assert with_reward_states(BFM.load(out), [BFM.load(out)]).reward_prompts is None  # new states likewise
+
+
+def _resave(src: Path, dst: Path, prompts: tuple[dict, dict], model: torch.nn.Module | None = None) -> Path:
+    ckpt = load_checkpoint(src)
+    return save_checkpoint(dst, model if model is not None else ckpt.model, ckpt.config,
+                           reward_buffer=ckpt.reward_buffer(), reward_prompts=prompts)
+
+
+def test_prompts_of_other_weights_are_refused_on_load(exported, tmp_path):
+    model, _, out = exported
+    stored = BFM.load(out).reward_prompts.to_tensors()
+    other = _resave(out, tmp_path / "other", stored, model=load_checkpoint(model.parent / "donor").model)
+    with pytest.raises(CheckpointError, match=f"{PROMPTS_FILE}.*other weights"):
+        BFM.load(other)
+
+
+@pytest.mark.parametrize("case, match", [
+    ("nan", "finite"), ("shape", "finite"), ("name", "unknown|not"), ("temperature", "temperature"),
+    ("states", "states"),
+])
+def test_malformed_stored_prompts_are_named(exported, tmp_path, case, match):
+    _, _, out = exported
+    tensors, meta = BFM.load(out).reward_prompts.to_tensors()
+    first = next(iter(tensors))
+    if case == "nan":
+        tensors[first] = torch.full_like(tensors[first], float("nan"))
+    elif case == "shape":
+        tensors[first] = tensors[first][:-1]
+    elif case == "name":
+        tensors["no-such-task"] = tensors[first].clone()
+    elif case == "temperature":
+        meta["temperature"] = 3.0
+    else:
+        meta["states"] = 0
+    bad = _resave(out, tmp_path / case, (tensors, meta))
+    with pytest.raises(CheckpointError, match=match) as err:
+        BFM.load(bad)
+    assert PROMPTS_FILE in str(err.value)
+
+
+def test_a_corrupted_prompts_file_is_caught_by_its_checksum(exported, tmp_path):
+    import shutil
+
+    _, _, out = exported
+    copy = Path(shutil.copytree(out, tmp_path / "copy"))
+    data = bytearray((copy / PROMPTS_FILE).read_bytes())
+    data[-5] ^= 0xFF
+    (copy / PROMPTS_FILE).write_bytes(bytes(data))
+    with pytest.raises(CheckpointError, match="checksum"):
+        BFM.load(copy)
+
+
+def test_the_digest_follows_every_tensor(exported):
+    _, _, out = exported
+    model = BFM.load(out).model
+    before = weights_digest(model)
+    assert before == weights_digest(BFM.load(out).model)
+    with torch.no_grad():
+        model.obs_normalizer.mean.add_(1e-6)
+    assert weights_digest(model) != before
+
+
+def test_store_prompts_is_refused_for_a_model_without_the_humanoid_tasks(tmp_path):
+    from fbcpr.config import config_from_dict
+    from fbcpr.fb_cpr.model import FBCPRModel
+
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 4, "action_dim": 2},
+                            "env": {"name": "toy"}})
+    src = save_checkpoint(tmp_path / "toy", FBCPRModel(cfg.model), cfg,
+                          reward_buffer={"next_obs": np.zeros((4, 4)), "qpos": np.zeros((4, 2)),
+                                         "qvel": np.zeros((4, 2))})
+    res = CliRunner().invoke(app, ["export", str(src), str(tmp_path / "out"), "--store-prompts"])
+    assert res.exit_code != 0 and "--store-prompts" in res.output and "toy" in res.output
+
+
+def test_reward_prompts_to_tensors_records_what_loading_checks():
+    z = {"move-ego-0-0": np.ones(4, np.float32)}
+    tensors, meta = RewardPrompts(z, 7, "abc").to_tensors()
+    assert meta == {"states": 7, "digest": "abc", "method": "weighted", "temperature": 10.0}
+    assert torch.equal(tensors["move-ego-0-0"], torch.ones(4))
