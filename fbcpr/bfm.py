@@ -432,6 +432,9 @@ def model_card(bfm: BFM, metrics: dict[str, float], repo_id: str) -> str:
     else:
         table = "No evaluation metrics were recorded for this checkpoint (run `fbcpr eval` and push again)."
     has_buffer = bfm.reward_buffer is not None
+    prompts = bfm.reward_prompts
+    stored = (f"\n- stored reward prompts: {len(prompts.z)} named tasks, inferred from {prompts.states:,} states"
+              if prompts is not None else "")
     return f"""---
 {data.to_yaml()}
 ---
@@ -443,7 +446,7 @@ A forward-backward model with conditional policy regularization (FB-CPR) for the
 
 - observation: {bfm.obs_dim} values, action: {bfm.action_dim} PD targets in [-1, 1], latent z: {bfm.z_dim} dims
 - trained on motions: `{motions}`
-- reward-inference buffer included: {"yes" if has_buffer else "no (reward prompts unavailable)"}
+- reward-inference buffer included: {"yes" if has_buffer else "no (reward prompts unavailable)"}{stored}
 
 Check the license of the motion data the model was trained on before using it.
 

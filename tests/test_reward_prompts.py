@@ -178,3 +178,14 @@ def test_reward_prompts_to_tensors_records_what_loading_checks():
     tensors, meta = RewardPrompts(z, 7, "abc").to_tensors()
     assert meta == {"states": 7, "digest": "abc", "method": "weighted", "temperature": 10.0}
     assert torch.equal(tensors["move-ego-0-0"], torch.ones(4))
+
+
+def test_stored_prompts_travel_to_the_hub_folder_and_the_card_names_them(exported, tmp_path):
+    from fbcpr.bfm import HUB_FILES
+
+    _, _, out = exported
+    folder = BFM.load(out).save_for_hub(tmp_path / "hub", repo_id="me/bfm")
+    assert PROMPTS_FILE in HUB_FILES and (folder / PROMPTS_FILE).is_file()
+    n = len(BFM.load(out).reward_prompts.z)
+    assert f"stored reward prompts: {n} named tasks, inferred from 64 states" in (folder / "README.md").read_text()
+    assert BFM.load(folder).reward_prompts.states == 64
