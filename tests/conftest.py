@@ -65,3 +65,21 @@ def tiny_humanoid_checkpoint(root, name: str, seed: int, preset: str = "tiny", m
     buf = humanoid_states(32, seed=seed)
     model.obs_normalizer.update(torch.as_tensor(buf["next_obs"]))
     return save_checkpoint(root / name, model, cfg, reward_buffer=buf)
+
+
+def toy_run_config(algorithm: str = "fb_cpr", model: dict | None = None, agent: dict | None = None,
+                   train: dict | None = None):
+    """A tiny training config on the toy env for trainer tests: 4 envs, 30-step episodes, a 40-step warm-up, no
+    evaluation or periodic checkpoint, one torch thread. Each section's keys override these."""
+    from fbcpr.config import config_from_dict
+
+    return config_from_dict({
+        "algorithm": algorithm,
+        "model": {"preset": "tiny", **(model or {})},
+        "agent": {"batch_size": 32, **(agent or {})},
+        "env": {"name": "toy", "max_episode_steps": 30},
+        "train": {"total_env_steps": 100_000, "num_envs": 4, "warmup_steps": 40, "rollout_steps": 20,
+                  "updates_per_rollout": 2, "buffer_capacity": 1000, "priority_every": 0, "eval_every": 0,
+                  "checkpoint_every": 0, "log_every": 40, "reward_buffer_size": 0, "torch_threads": 1,
+                  **(train or {})},
+    })

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import toy_run_config
 from fbcpr.checkpoint import CheckpointError
 from fbcpr.config import ConfigError, config_from_dict
 from fbcpr.fb_cpr.agent import FBCPRAgent
@@ -78,17 +79,7 @@ def test_actor_anchor_holds_the_mean_on_demonstration_pairs_and_nothing_else():
 
 
 def toy_cfg(train=None, **agent):
-    cfg = {
-        "model": {"preset": "tiny"},
-        "agent": {"batch_size": 32, **agent},
-        "env": {"name": "toy", "max_episode_steps": 30},
-        "train": {"total_env_steps": 100_000, "num_envs": 4, "warmup_steps": 40, "rollout_steps": 20,
-                  "updates_per_rollout": 2, "buffer_capacity": 1000, "priority_every": 0, "eval_every": 0,
-                  "checkpoint_every": 0, "log_every": 40, "reward_buffer_size": 0, "save_buffer": True,
-                  "torch_threads": 1},
-    }
-    cfg["train"].update(train or {})
-    return config_from_dict(cfg)
+    return toy_run_config(agent=agent, train={"save_buffer": True, **(train or {})})
 
 
 def test_a_held_run_continues_from_its_model_keeps_the_anchor_on_resume_and_needs_init_from(tmp_path):

@@ -4,6 +4,7 @@ import shutil
 import pytest
 import torch
 
+from conftest import toy_run_config
 from fbcpr.checkpoint import CheckpointError
 from fbcpr.config import ConfigError, config_from_dict
 from fbcpr.fb_cpr.agent import FBCPRAgent
@@ -15,17 +16,10 @@ torch.set_num_threads(1)
 
 
 def toy_cfg(regulariser="near"):
-    return config_from_dict({
-        "model": {"preset": "tiny"},
-        "agent": {"batch_size": 32, "regulariser": regulariser,
-                  "near": {"hidden_dim": 32, "hidden_layers": 2, "sigma_max": 1.0, "lr": 1e-3, "ema": 0.9,
-                           "num_levels": 5, "anneal_threshold": 0.01}},
-        "env": {"name": "toy", "max_episode_steps": 30},
-        "train": {"total_env_steps": 100_000, "num_envs": 4, "warmup_steps": 40, "rollout_steps": 20,
-                  "updates_per_rollout": 2, "buffer_capacity": 1000, "z_update_every": 7, "priority_every": 0,
-                  "eval_every": 0, "checkpoint_every": 0, "log_every": 40, "reward_buffer_size": 50,
-                  "save_buffer": True, "torch_threads": 1},
-    })
+    near = {"hidden_dim": 32, "hidden_layers": 2, "sigma_max": 1.0, "lr": 1e-3, "ema": 0.9, "num_levels": 5,
+            "anneal_threshold": 0.01}
+    return toy_run_config(agent={"regulariser": regulariser, "near": near},
+                          train={"z_update_every": 7, "reward_buffer_size": 50, "save_buffer": True})
 
 
 def learner_state(tr):

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import toy_run_config
 from fbcpr.bfm import resolve_checkpoint
 from fbcpr.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, read_trainer_meta
 from fbcpr.config import ConfigError, config_from_dict
@@ -19,16 +20,10 @@ torch.set_num_threads(1)
 
 
 def toy_cfg(**train):
-    return config_from_dict({
-        "algorithm": "td3",
-        "model": {"hidden_dim": 16, "hidden_layers": 1},
-        "agent": {"batch_size": 32, "reward": {"task": "reach-top-right"}},
-        "env": {"name": "toy", "max_episode_steps": 30},
-        "train": {"total_env_steps": 100_000, "num_envs": 4, "warmup_steps": 40, "rollout_steps": 40,
-                  "updates_per_rollout": 1, "buffer_capacity": 1000, "priority_every": 0, "eval_every": 40,
-                  "checkpoint_every": 0, "keep_checkpoints": 1, "log_every": 40, "reward_buffer_size": 0,
-                  "save_buffer": True, "torch_threads": 1, "keep_best": "eval/score", **train},
-    })
+    return toy_run_config("td3", model={"hidden_dim": 16, "hidden_layers": 1},
+                          agent={"reward": {"task": "reach-top-right"}},
+                          train={"rollout_steps": 40, "updates_per_rollout": 1, "eval_every": 40,
+                                 "keep_checkpoints": 1, "save_buffer": True, "keep_best": "eval/score", **train})
 
 
 def scripted(values):

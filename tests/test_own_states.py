@@ -5,8 +5,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from conftest import toy_run_config
 from fbcpr.checkpoint import latest_checkpoint, load_checkpoint
-from fbcpr.config import config_from_dict, load_config
+from fbcpr.config import load_config
 from fbcpr.trainer import Trainer
 
 torch.set_num_threads(1)
@@ -14,12 +15,7 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def toy(**train):
-    return config_from_dict({
-        "model": {"preset": "tiny", "actor_std": 0.05}, "agent": {"batch_size": 32},
-        "env": {"name": "toy", "max_episode_steps": 30},
-        "train": {"total_env_steps": 100_000, "num_envs": 4, "warmup_steps": 40, "rollout_steps": 20,
-                  "updates_per_rollout": 2, "buffer_capacity": 1000, "priority_every": 0, "eval_every": 0,
-                  "checkpoint_every": 0, "log_every": 40, "reward_buffer_size": 60, "torch_threads": 1, **train}})
+    return toy_run_config(model={"actor_std": 0.05}, train={"reward_buffer_size": 60, **train})
 
 
 def test_a_warm_up_past_the_end_rolls_the_loaded_policy_out_and_samples_its_states(tmp_path):
