@@ -5,7 +5,8 @@ paper-S sized model on CPU, each next to a plain torch reference measured in the
         [--checkpoint pretrained --checkpoint RUN/checkpoints/step_...]
 
 `--checkpoint` also times a saved model from disk to its first reward prompt: loading, B over its whole
-reward sample and, for a sample stored as states only (`fbcpr export`), rebuilding the observations first.
+reward sample and, for a sample stored as states only (`fbcpr export`), rebuilding the observations first; or, for
+a prompt stored at export (`--store-prompts`), loading alone.
 
 Targets (issue 6): a reward prompt in <= 2 s (the paper reports about 10 s for this step), act() <= 2 ms.
 The model is untrained (timing does not depend on the weights); the reward-inference buffer holds real
@@ -108,8 +109,10 @@ def main() -> None:
             loaded[-1].prompt.reward(TASKS[0])
 
         first = timed(load_and_prompt, args.repeats)
-        states = len(loaded[-1].reward_buffer["qpos"])  # the last timed load: its sample is already read
-        print(f"  {f'{ckpt}: load + first {TASKS[0]}':46s} {first * 1e3:8.1f} ms ({states} states, "
+        stored = loaded[-1].reward_prompts
+        source = (f"stored at export from {stored.states} states, none read" if stored and TASKS[0] in stored.z
+                  else f"{len(loaded[-1].reward_buffer['qpos'])} states")  # the last timed load's, already read
+        print(f"  {f'{ckpt}: load + first {TASKS[0]}':46s} {first * 1e3:8.1f} ms ({source}, "
               f"{first / ref:5.1f}x the matmul)")
 
     # --- act latency ------------------------------------------------------------------------------------
