@@ -189,3 +189,15 @@ def test_stored_prompts_travel_to_the_hub_folder_and_the_card_names_them(exporte
     n = len(BFM.load(out).reward_prompts.z)
     assert f"stored reward prompts: {n} named tasks, inferred from 64 states" in (folder / "README.md").read_text()
     assert BFM.load(folder).reward_prompts.states == 64
+
+
+def test_more_states_than_the_bound_are_refused_before_any_work(exported, monkeypatch):
+    import fbcpr.reward_prompts as rp
+    from fbcpr.errors import InputError
+
+    model, _, _ = exported
+    monkeypatch.setattr(rp, "MAX_STATES", 31)
+    bfm = BFM.load(model)  # 32 states
+    monkeypatch.setattr(bfm, "backward", lambda *a, **k: pytest.fail("B was computed"))
+    with pytest.raises(InputError, match="32 reward states.*at most 31.*--reward-states-from"):
+        infer_reward_prompts(bfm, ["move-ego-0-0"])
