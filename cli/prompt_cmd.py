@@ -224,7 +224,11 @@ def prompt_command(
     rows = [("steps", str(ep.steps))]
     if reward is not None:
         r = ep.rewards(reward)
-        rows += [("return", f"{r.sum():.2f}"), ("mean reward", f"{r.mean() if len(r) else 0.0:.3f}")]
+        stored = bfm.prompt.stored_reward(reward, method=method or "weighted")
+        source = (f"stored at export (from {bfm.reward_prompts.states:,} states)" if stored is not None
+                  else "inferred from the checkpoint's reward states")
+        rows += [("return", f"{r.sum():.2f}"), ("mean reward", f"{r.mean() if len(r) else 0.0:.3f}"),
+                 ("reward prompt", source)]
     elif goal is not None:
         dist = d_smpl(np.stack(ep.obs[1:]), target) if ep.steps else np.full(1, np.inf)
         rows += [("final d_smpl", f"{dist[-1]:.3f}"), ("min d_smpl", f"{dist.min():.3f}"),

@@ -69,15 +69,31 @@ class Prompt:
         if method == "weighted" and not (isinstance(temperature, (int, float)) and np.isfinite(temperature)
                                          and temperature >= 0):
             raise PromptError(f"temperature: must be a finite number >= 0, got {temperature!r}")
-        if isinstance(task, str) and (method, n, temperature, seed) == ("weighted", N_REWARD_SAMPLES, TEMPERATURE, 0):
-            stored = self.bfm.reward_prompts
-            if stored is not None and label in stored.z:  # inferred at export from more states than it keeps
-                return stored.z[label].copy()
+        stored = self.stored_reward(task, method, n, temperature, seed)
+        if stored is not None:
+            return stored
         if self.bfm.reward_buffer is None:
             raise PromptError("this checkpoint ships no reward-inference buffer (reward_buffer.safetensors): "
                               "reward prompts need one; goal, track and imitate prompts still work")
         samples, b = self.bfm.reward_samples(n, seed)
         return self._project(regress_reward(fn, label, samples, b, method, temperature))
+
+    def stored_reward(
+        self,
+        task: RewardSpec,
+        method: str = "weighted",
+        n: int = N_REWARD_SAMPLES,
+        temperature: float = TEMPERATURE,
+        seed: int = 0,
+    ) -> np.ndarray | None:
+        """The z the checkpoint stores for a named task (`fbcpr.reward_prompts`), which `reward` returns under these
+        default settings; None for other settings, a callable, a combined or unstored name, or no stored prompts."""
+        stored = self.bfm.reward_prompts
+        if stored is None or not isinstance(task, str) or (method, n, temperature, seed) != (
+                "weighted", N_REWARD_SAMPLES, TEMPERATURE, 0):
+            return None
+        z = stored.z.get(task.strip())
+        return None if z is None else z.copy()
 
     # ------------------------------------------------------------------------------------------- goals
     def goal(self, target: GoalSpec) -> np.ndarray:

@@ -201,3 +201,29 @@ def test_more_states_than_the_bound_are_refused_before_any_work(exported, monkey
     monkeypatch.setattr(bfm, "backward", lambda *a, **k: pytest.fail("B was computed"))
     with pytest.raises(InputError, match="32 reward states.*at most 31.*--reward-states-from"):
         infer_reward_prompts(bfm, ["move-ego-0-0"])
+
+
+def test_fbcpr_prompt_says_whether_the_reward_prompt_was_stored(exported):
+    model, _, out = exported
+    task = next(t for t in TASKS if t in BFM.load(out).reward_prompts.z)
+    stored = CliRunner().invoke(app, ["prompt", str(out), "--reward", task, "--steps", "2"])
+    assert stored.exit_code == 0, stored.output
+    assert "stored at export (from 64 states)" in stored.output
+    for args in (["prompt", str(out), "--reward", task, "--steps", "2", "--method", "regression"],
+                 ["prompt", str(model), "--reward", task, "--steps", "2"]):
+        res = CliRunner().invoke(app, args)
+        assert res.exit_code == 0, res.output
+        assert "inferred from the checkpoint's reward states" in res.output and "stored at export" not in res.output
+
+
+def test_stored_reward_answers_only_for_the_default_settings_of_a_stored_name(exported):
+    _, _, out = exported
+    got = BFM.load(out)
+    task = next(iter(got.reward_prompts.z))
+    np.testing.assert_array_equal(got.prompt.stored_reward(f"  {task} "), got.reward_prompts.z[task])
+    assert got.prompt.stored_reward(task, temperature=1.0) is None
+    assert got.prompt.stored_reward(f"{task}*{task}") is None
+    assert got.prompt.stored_reward(lambda *a: np.ones(1)) is None
+    z = got.prompt.stored_reward(task)
+    z[:] = 0  # a copy: the stored prompt is untouched
+    assert np.any(got.prompt.reward(task) != 0)
