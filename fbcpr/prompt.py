@@ -4,7 +4,9 @@ Every z is returned as a float32 numpy vector (or one row per step for tracking)
 sqrt(d) sphere that the policy was trained on:
 
 - reward: weighted regression z ∝ Σ exp(τ r(s')) r(s') B(s') over the checkpoint's reward-inference buffer
-  (τ = 10, up to 100k samples), or the plain FB regression z ∝ Σ r(s') B(s');
+  (τ = 10, up to 100k samples), or the plain FB regression z ∝ Σ r(s') B(s'). A checkpoint may store the z's of
+  the named tasks, regressed at export on more states than it keeps (`fbcpr.reward_prompts`): those answer by
+  default;
 - goal: z = B(g), with zero velocities when the goal is a pose;
 - track: z_t ∝ Σ_{j=t+1}^{t+L} B(s_j), the ER_FB encoding of the next L states (L = training sequence length),
   the window shrinking at the end of the clip;

@@ -4,7 +4,7 @@ A reward prompt is a weighted regression over reward-inference states, z ∝ Σ 
 With τ = 10 most of the weight falls on the few states of highest reward, so which states a sample holds moves z:
 two draws of 50,000 of one model's own states walked 70.9 and 85.8 under the walk prompt (docs/results.md section
 42). A checkpoint that ships keeps ~50k states within its size budget, while a named task's z is 256 numbers:
-`infer_reward_prompts` regresses them on every state given to the export (e.g. a million, from ten rollout runs),
+`infer_reward_prompts` regresses them on every state given to the export (500,000 from ten rollout runs in section 43),
 and the checkpoint stores them in reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the
 stored z for a named task under the default inference settings; a user's reward, a combined name or other settings
 are inferred from the subsample as before.
@@ -33,7 +33,8 @@ if TYPE_CHECKING:
 #: The inference method stored prompts were made with: `Prompt.reward`'s default.
 METHOD = "weighted"
 #: Most states prompts are inferred from at once: B of a million states takes 1 GB beside their 1.4 GB of
-#: observations, and ten own-states draws of 50,000 already agree to a cosine of 0.95 between halves (section 43).
+#: observations, and two pools of five own-states draws (250,000 states each) already agree to a cosine
+#: of 0.95 (section 43).
 MAX_STATES = 1_000_000
 
 
