@@ -36,6 +36,8 @@ METHOD = "weighted"
 #: observations, and two pools of five own-states draws (250,000 states each) already agree to a cosine
 #: of 0.95 (section 43).
 MAX_STATES = 1_000_000
+#: Most prompts a file may store (the registry names 54 tasks): each one's name is parsed on load.
+MAX_PROMPTS = 4096
 
 
 @dataclass(frozen=True)
@@ -46,11 +48,10 @@ class RewardPrompts:
     z: dict[str, np.ndarray]
     states: int
     digest: str
-    temperature: float = TEMPERATURE
 
     def to_tensors(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """What `save_checkpoint(reward_prompts=...)` writes: one tensor per task and the JSON metadata."""
-        meta = {"states": self.states, "digest": self.digest, "method": METHOD, "temperature": self.temperature}
+        meta = {"states": self.states, "digest": self.digest, "method": METHOD, "temperature": TEMPERATURE}
         return {name: torch.as_tensor(z) for name, z in self.z.items()}, meta
 
 
@@ -105,6 +106,8 @@ def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], 
     states = meta.get("states")
     if not isinstance(states, int) or states < 1:
         raise CheckpointError(f"{file}: metadata 'states' must be a positive count, got {states!r}")
+    if len(tensors) > MAX_PROMPTS:
+        raise CheckpointError(f"{file}: {len(tensors):,} prompts; a checkpoint stores at most {MAX_PROMPTS:,}")
     z_dim = int(model.z_dim)
     z = {}
     for name, t in tensors.items():
@@ -115,4 +118,4 @@ def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], 
         except PromptError as err:
             raise CheckpointError(f"{file}: {err}") from None
         z[name] = t.float().cpu().numpy()
-    return RewardPrompts(z, states, meta["digest"], float(meta["temperature"]))
+    return RewardPrompts(z, states, meta["digest"])

@@ -116,11 +116,15 @@ def test_prompts_of_other_weights_are_refused_on_load(exported, tmp_path):
 
 @pytest.mark.parametrize("case, match", [
     ("nan", "finite"), ("shape", "finite"), ("name", "unknown|not"), ("temperature", "temperature"),
-    ("states", "states"),
+    ("states", "states"), ("many", "at most 3"),
 ])
-def test_malformed_stored_prompts_are_named(exported, tmp_path, case, match):
+def test_malformed_stored_prompts_are_named(exported, tmp_path, monkeypatch, case, match):
+    import fbcpr.reward_prompts as rp
+
     _, _, out = exported
     tensors, meta = BFM.load(out).reward_prompts.to_tensors()
+    if case == "many":
+        monkeypatch.setattr(rp, "MAX_PROMPTS", 3)
     first = next(iter(tensors))
     if case == "nan":
         tensors[first] = torch.full_like(tensors[first], float("nan"))
@@ -130,7 +134,7 @@ def test_malformed_stored_prompts_are_named(exported, tmp_path, case, match):
         tensors["no-such-task"] = tensors[first].clone()
     elif case == "temperature":
         meta["temperature"] = 3.0
-    else:
+    elif case == "states":
         meta["states"] = 0
     bad = _resave(out, tmp_path / case, (tensors, meta))
     with pytest.raises(CheckpointError, match=match) as err:
