@@ -3,7 +3,7 @@
 A reward prompt is a weighted regression over reward-inference states, z ∝ Σ exp(τ r) r B(s) (`fbcpr.prompt`).
 With τ = 10 most of the weight falls on the few states of highest reward, so which states a sample holds moves z:
 two draws of 50,000 of one model's own states walked 70.9 and 85.8 under the walk prompt (docs/results.md section
-42). A checkpoint that ships keeps ~50k states within its size budget, while a named task's z is 256 numbers:
+42). A checkpoint that ships keeps ~50k states within its size budget, while a named task's z is z_dim numbers (64):
 `infer_reward_prompts` regresses them on every state given to the export (500,000 from ten rollout runs in section 43),
 and the checkpoint stores them in reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the
 stored z for a named task under the default inference settings; a user's reward, a combined name or other settings

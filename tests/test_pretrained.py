@@ -47,3 +47,14 @@ def test_demo_prompts_the_pretrained_model(tmp_path):
     assert summary["model"] == "pretrained" and summary["training"] is None
     assert set(summary["scores"]) == {"FB-CPR", "zero action", "random action"}
     assert "pretrained model" in summary["verdict"]
+
+
+def test_stored_reward_prompts_are_the_ones_its_states_give():
+    from humanoid_env.tasks.rewards import TASKS
+
+    bfm = BFM.pretrained()
+    stored = bfm.reward_prompts
+    assert stored is not None and set(stored.z) == set(TASKS) and stored.states == len(bfm.reward_buffer["qpos"])
+    for task in ("move-ego-0-0", "move-ego-0-2", "split-1", "raisearms-m-h"):
+        from_states = bfm.prompt.reward(task, n=10**6)   # n past the sample: inferred from every state, not stored
+        np.testing.assert_allclose(bfm.prompt.reward(task), from_states, atol=1e-4)  # |z| = 8; threads reorder sums
