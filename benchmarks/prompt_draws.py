@@ -17,8 +17,7 @@ import numpy as np
 import torch
 
 from fbcpr import BFM
-from fbcpr.latents import TEMPERATURE
-from fbcpr.prompt import PromptError, regress_reward, reward_fn
+from fbcpr.reward_prompts import infer_reward_prompts
 from humanoid_env.tasks.rewards import TASKS
 
 
@@ -44,18 +43,17 @@ def main() -> None:
     half = len(draws) // 2
     sets = {"all": pooled(draws), "A": pooled(draws[:half]), "B": pooled(draws[half:2 * half])}
     sets.update({i: d for i, d in enumerate(draws)})
-    embedded = {name: (s, bfm.backward(s["next_obs"], as_tensor=True)) for name, s in sets.items()}
+    # each set's prompts as `fbcpr export --store-prompts` infers them; a task a set pays nothing on is left out
+    prompts = {name: infer_reward_prompts(BFM(bfm.model, bfm.config, reward_buffer=s), args.tasks).z
+               for name, s in sets.items()}
     print(f"{args.model}: {len(draws)} draws of {[len(d['qpos']) for d in draws]} states; halves of {half} draws")
     print(f"{'task':>22s} {'draw-draw mean':>15s} {'min':>6s} {'draw-pooled mean':>17s} {'halves':>7s}")
     rows = []
     for task in args.tasks:
-        fn, label = reward_fn(task)
-        try:
-            z = {name: bfm.project_z(regress_reward(fn, label, s, b, "weighted", TEMPERATURE))
-                 for name, (s, b) in embedded.items()}
-        except PromptError as err:  # a draw without a state this task pays
-            print(f"{task:>22s} skipped: {err}")
+        if any(task not in p for p in prompts.values()):
+            print(f"{task:>22s} skipped: it pays nothing on some draw's states")
             continue
+        z = {name: p[task] for name, p in prompts.items()}
         pairs = [cosine(z[i], z[j]) for i, j in itertools.combinations(range(len(draws)), 2)]
         to_pool = [cosine(z[i], z["all"]) for i in range(len(draws))]
         row = (float(np.mean(pairs)), float(np.min(pairs)), float(np.mean(to_pool)), cosine(z["A"], z["B"]))
