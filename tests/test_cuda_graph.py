@@ -109,6 +109,7 @@ def test_the_lease_agreement_check_runs_and_finds_eager_twins_equal():
     spec.loader.exec_module(update_speed)
     line = update_speed.graph_agreement("tiny", "cpu", updates=2)
     assert line.startswith("tiny: eager (not CUDA); agree; after 2 updates")
-    assert line.count("0.00e+00") == 6
+    assert line.count("0.00e+00") == 9
+    assert "graphed vs eager with the graph's capturable Adam: 0.00e+00, 0.00e+00, 0.00e+00;" in line
     growth = line.split("per update, the metric that differs most: ")[1].split(", ")
     assert [g.split(":")[0] for g in growth] == ["1", "2"] and all(g.endswith(" 0.0e+00") for g in growth)
