@@ -19,6 +19,8 @@ actions, whose rollouts the chaotic physics still sends elsewhere), it prints ea
 largest distance of a copy's mean from the base's mean: the noise floor. The rule then widens every margin by it:
 a candidate's mean walk and task sum must beat the base's by more than the floor, and its tasks, goal success and
 EMD may fall short of the base by the floor too. A copy of the base fails the rule of sections 21-22 (section 27).
+`--floors` gives floors measured before instead (section 27's, which the rule of sections 41-44 uses: `--floors
+walk=4.7 tasks=0.17 goal=0.005 EMD=0.11 sum=16`); with copies as well, each measure takes the larger.
 
     python benchmarks/compare_targets.py --base runs/targets-S2-s0.json runs/targets-S2-s1.json \
         --candidate A runs/targets-A-s0.json runs/targets-A-s1.json --candidate B runs/targets-B-s0.json ... \
@@ -104,6 +106,27 @@ def noise_floor(base: dict[str, list[float]], copies: list[dict[str, list[float]
     return {m: max((abs(_mean(c[m]) - _mean(base[m])) for c in copies), default=0.0) for m in base}
 
 
+#: `--floors` keys and the measures they set
+FLOOR_KEYS = {"walk": "walk", "tasks": "tasks > floors", "goal": "goal", "EMD": "EMD", "sum": "sum"}
+
+
+def parse_floors(items: list[str]) -> dict[str, float]:
+    """`KEY=VALUE` items (keys of FLOOR_KEYS, values finite and at least 0) as a noise floor per measure."""
+    floors = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in FLOOR_KEYS:
+            raise ValueError(f"{item!r}: the key must be one of {', '.join(FLOOR_KEYS)}")
+        try:
+            number = float(value)
+        except ValueError:
+            raise ValueError(f"{item!r}: the value must be a number") from None
+        if not 0 <= number < float("inf"):
+            raise ValueError(f"{item!r}: the value must be finite and at least 0")
+        floors[FLOOR_KEYS[key]] = number
+    return floors
+
+
 def _mean(values: list[float]) -> float:
     return sum(values) / len(values)
 
@@ -132,7 +155,14 @@ def main() -> None:
     ap.add_argument("--noise", type=Path, nargs="+", action="append", default=[], metavar="FILE",
                     help="a noise copy of the base: its files in the base's seed order (repeatable); sizes the "
                          "noise floor that the rule's margins add")
+    ap.add_argument("--floors", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="noise floors measured before, keys " + ", ".join(FLOOR_KEYS) + " (section 27: walk=4.7 "
+                         "tasks=0.17 goal=0.005 EMD=0.11 sum=16); with --noise, each measure takes the larger")
     args = ap.parse_args()
+    try:
+        given = parse_floors(args.floors)
+    except ValueError as e:
+        ap.error(f"--floors {e}")
     pushes = {}
     for name, *held in args.pushes:
         if len(held) == 1 and held[0].isdigit():
@@ -148,6 +178,7 @@ def main() -> None:
         ap.error("--pushes: give the base's count too (--pushes base N)")
     base_res = compare(args.base, args.base)
     noise = noise_floor(base_res, [compare(args.base, files) for files in args.noise])
+    noise = {m: max(v, given.get(m, 0.0)) for m, v in noise.items()}
     print("seeds " + ", ".join(str(model_row(p)[0].get("seed")) for p in args.base) + "; per seed (mean)")
     copies = [[f"noise copy {i + 1}", *map(str, files)] for i, files in enumerate(args.noise)]
     for name, *files in [["base", *map(str, args.base)], *copies, *args.candidate]:
@@ -160,7 +191,7 @@ def main() -> None:
             failed = rule_failures(base_res, res, pushes["base"], pushes[name], noise)
             cells.append(f"pushes {pushes[name]}/128  rule: " + ("passes" if not failed else "fails " + ", ".join(failed)))
         print(f"{name:24s} " + "  ".join(cells))
-    if args.noise:
+    if args.noise or given:
         print(f"{'noise floor':24s} " + "  ".join(f"{m} ±" + FORMATS[m][1].format(v) for m, v in noise.items()
                                                   if m != "> base"))
 

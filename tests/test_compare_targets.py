@@ -158,3 +158,29 @@ def test_noise_copies_set_a_floor_that_widens_every_margin_of_the_rule(tmp_path,
     assert out[2].startswith("noise copy 1") and out[3].startswith("noise copy 2")
     assert out[-1].startswith("noise floor") and "walk ±2.0" in out[-1] and "sum ±5" in out[-1]
     assert "rule: passes" in out[4]   # walk +3 and sum +6 beat the floor; goal, EMD and tasks are within it
+
+
+def test_floors_given_on_the_command_line_widen_the_rule_as_copies_do(tmp_path, capsys, monkeypatch):
+    def files(name, walk, jump, **measures):
+        return [targets_file(tmp_path / f"{name}{s}.json", name, s, {"move-ego-0-2": walk + s, "jump-2": jump},
+                             **measures) for s in (0, 1)]
+    base = files("base", 10.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
+    # walk +1.5 and sum +4.5 over the base: a pass without floors, a fail with section 27's walk and sum floors
+    cand = files("c", 11.5, 8.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
+    argv = ["compare_targets.py", "--base", *map(str, base), "--candidate", "C", *map(str, cand),
+            "--pushes", "base", "95", "--pushes", "C", "95"]
+    monkeypatch.setattr("sys.argv", argv)
+    compare_targets.main()
+    assert "rule: passes" in capsys.readouterr().out
+    monkeypatch.setattr("sys.argv", argv + ["--floors", "walk=4.7", "tasks=0.17", "goal=0.005", "EMD=0.11", "sum=16"])
+    compare_targets.main()
+    out = capsys.readouterr().out.splitlines()
+    assert "rule: fails walk, sum" in out[2]
+    assert out[-1].startswith("noise floor") and "walk ±4.7" in out[-1] and "sum ±16" in out[-1]
+    for bad, message in [("speed=1", "the key must be one of"), ("walk=x", "the value must be a number"),
+                         ("sum=nan", "the value must be finite"),
+                         ("goal=-1", "the value must be finite and at least 0")]:
+        monkeypatch.setattr("sys.argv", argv + ["--floors", bad])
+        with pytest.raises(SystemExit):
+            compare_targets.main()
+        assert f"--floors '{bad}': {message}" in capsys.readouterr().err
