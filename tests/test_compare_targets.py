@@ -23,6 +23,12 @@ def targets_file(path: Path, name: str, seed: int, returns: dict, **measures) ->
     return path
 
 
+def two_seeds(folder: Path, name: str, walk: float, jump: float, **measures) -> list[Path]:
+    """A model's files for evaluation seeds 0 and 1: a walk return of `walk` + seed and a jump return of `jump`."""
+    return [targets_file(folder / f"{name}{s}.json", name, s, {"move-ego-0-2": walk + s, "jump-2": jump}, **measures)
+            for s in (0, 1)]
+
+
 def test_per_seed_measures_sums_and_tasks_above_the_base(tmp_path):
     base = [targets_file(tmp_path / f"b{s}.json", "base", s, {"move-ego-0-2": 10.0, "jump-2": 5.0}) for s in (0, 1)]
     cand = [targets_file(tmp_path / "c0.json", "cand", 0, {"move-ego-0-2": 20.0, "jump-2": 1.0}, goal_success=0.3),
@@ -136,21 +142,20 @@ def test_pushes_are_summed_from_upright_time_out_files(tmp_path, capsys, monkeyp
 
 
 def test_noise_copies_set_a_floor_that_widens_every_margin_of_the_rule(tmp_path, capsys, monkeypatch):
-    def files(name, walk, jump, **measures):
-        return [targets_file(tmp_path / f"{name}{s}.json", name, s, {"move-ego-0-2": walk + s, "jump-2": jump},
-                             **measures) for s in (0, 1)]
-    base = files("base", 10.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
-    copies = [files("p", 12.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.2),
-              files("q", 9.0, 1.0, beats_floors=39, goal_success=0.05, tracking_emd=4.9)]
+    base = two_seeds(tmp_path, "base", 10.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
+    copies = [two_seeds(tmp_path, "p", 12.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.2),
+              two_seeds(tmp_path, "q", 9.0, 1.0, beats_floors=39, goal_success=0.05, tracking_emd=4.9)]
     b = compare_targets.compare(base, base)
     floor = compare_targets.noise_floor(b, [compare_targets.compare(base, c) for c in copies])
     assert floor["walk"] == 2.0 and floor["sum"] == 5.0 and floor["goal"] == pytest.approx(0.05)
     assert floor["EMD"] == pytest.approx(0.2) and floor["tasks > floors"] == 1.0
     # better than the base, but not by more than its copies differ from it: a pass without the floor only
-    cand = compare_targets.compare(base, files("c", 11.5, 8.0, beats_floors=39, goal_success=0.08, tracking_emd=5.25))
+    cand = compare_targets.compare(base, two_seeds(tmp_path, "c", 11.5, 8.0, beats_floors=39, goal_success=0.08,
+                                                   tracking_emd=5.25))
     assert compare_targets.rule_failures(b, cand, 95, 95) == ["tasks", "goal", "EMD"]
     assert compare_targets.rule_failures(b, cand, 95, 95, floor) == ["walk", "sum"]
-    argv = ["compare_targets.py", "--base", *map(str, base), "--candidate", "C", *map(str, files("c", 13.0, 8.0, beats_floors=40)),
+    argv = ["compare_targets.py", "--base", *map(str, base),
+            "--candidate", "C", *map(str, two_seeds(tmp_path, "c", 13.0, 8.0, beats_floors=40)),
             "--pushes", "base", "95", "--pushes", "C", "95"]
     monkeypatch.setattr("sys.argv", argv + sum((["--noise", *map(str, c)] for c in copies), []))
     compare_targets.main()
@@ -161,12 +166,9 @@ def test_noise_copies_set_a_floor_that_widens_every_margin_of_the_rule(tmp_path,
 
 
 def test_floors_given_on_the_command_line_widen_the_rule_as_copies_do(tmp_path, capsys, monkeypatch):
-    def files(name, walk, jump, **measures):
-        return [targets_file(tmp_path / f"{name}{s}.json", name, s, {"move-ego-0-2": walk + s, "jump-2": jump},
-                             **measures) for s in (0, 1)]
-    base = files("base", 10.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
+    base = two_seeds(tmp_path, "base", 10.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
     # walk +1.5 and sum +4.5 over the base: a pass without floors, a fail with section 27's walk and sum floors
-    cand = files("c", 11.5, 8.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
+    cand = two_seeds(tmp_path, "c", 11.5, 8.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
     argv = ["compare_targets.py", "--base", *map(str, base), "--candidate", "C", *map(str, cand),
             "--pushes", "base", "95", "--pushes", "C", "95"]
     monkeypatch.setattr("sys.argv", argv)
