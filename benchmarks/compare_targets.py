@@ -22,6 +22,10 @@ EMD may fall short of the base by the floor too. A copy of the base fails the ru
 `--floors` gives floors measured before instead (section 27's, which the rule of sections 41-44 uses: `--floors
 walk=4.7 tasks=0.17 goal=0.005 EMD=0.11 sum=16`); with copies as well, each measure takes the larger.
 
+`--rule no-loss` applies section 45's rule in place of that of sections 21-44: the walk and the task sum need only
+not fall below the base's by more than the floor, the other clauses stay, and the candidate must gain beyond the
+floor on at least two of walk, goal success, EMD (lower) and task sum (the clause "two gains").
+
     python benchmarks/compare_targets.py --base runs/targets-S2-s0.json runs/targets-S2-s1.json \
         --candidate A runs/targets-A-s0.json runs/targets-A-s1.json --candidate B runs/targets-B-s0.json ... \
         --pushes base 95 --pushes A 101 --pushes B runs/up-B-s1.json runs/up-B-s2.json ... \
@@ -131,16 +135,29 @@ def _mean(values: list[float]) -> float:
     return sum(values) / len(values)
 
 
+#: `--rule` names: "gain" is the rule of sections 21-44, "no-loss" the rule of section 45 (module docstring)
+RULES = ("gain", "no-loss")
+
+
 def rule_failures(base: dict[str, list[float]], candidate: dict[str, list[float]], base_pushes: int,
-                  candidate_pushes: int, noise: dict[str, float] | None = None) -> list[str]:
-    """The clauses of the shipping rule (module docstring) that a candidate fails against the base, each margin
+                  candidate_pushes: int, noise: dict[str, float] | None = None, rule: str = "gain") -> list[str]:
+    """The clauses of the shipping `rule` (module docstring) that a candidate fails against the base, each margin
     widened by the `noise` floor of that measure; [] ships."""
+    if rule not in RULES:
+        raise ValueError(f"rule {rule!r}: must be one of {', '.join(RULES)}")
     b, c = ({m: _mean(res[m]) for m in base} for res in (base, candidate))
     n = {m: 0.0 for m in base} | (noise or {})
-    checks = {"walk": c["walk"] > b["walk"] + n["walk"], "sum": c["sum"] > b["sum"] + n["sum"],
-              "tasks": c["tasks > floors"] >= b["tasks > floors"] - 0.5 - n["tasks > floors"],
-              "goal": c["goal"] >= b["goal"] - n["goal"], "EMD": c["EMD"] <= b["EMD"] + 0.1 + n["EMD"],
-              "pushes": candidate_pushes >= base_pushes - 6}
+    gains = {"walk": c["walk"] > b["walk"] + n["walk"], "goal": c["goal"] > b["goal"] + n["goal"],
+             "EMD": c["EMD"] < b["EMD"] - n["EMD"], "sum": c["sum"] > b["sum"] + n["sum"]}
+    if rule == "gain":
+        checks = {"walk": gains["walk"], "sum": gains["sum"]}
+    else:
+        checks = {"walk": c["walk"] >= b["walk"] - n["walk"], "sum": c["sum"] >= b["sum"] - n["sum"]}
+    checks |= {"tasks": c["tasks > floors"] >= b["tasks > floors"] - 0.5 - n["tasks > floors"],
+               "goal": c["goal"] >= b["goal"] - n["goal"], "EMD": c["EMD"] <= b["EMD"] + 0.1 + n["EMD"],
+               "pushes": candidate_pushes >= base_pushes - 6}
+    if rule == "no-loss":
+        checks["two gains"] = sum(gains.values()) >= 2
     return [clause for clause, ok in checks.items() if not ok]
 
 
@@ -155,6 +172,9 @@ def main() -> None:
     ap.add_argument("--noise", type=Path, nargs="+", action="append", default=[], metavar="FILE",
                     help="a noise copy of the base: its files in the base's seed order (repeatable); sizes the "
                          "noise floor that the rule's margins add")
+    ap.add_argument("--rule", choices=RULES, default="gain",
+                    help="gain: walk and sum above the base's (sections 21-44); no-loss: no measure below the "
+                         "base's, and gains on two of walk, goal, EMD and sum (section 45)")
     ap.add_argument("--floors", nargs="+", default=[], metavar="KEY=VALUE",
                     help="noise floors measured before, keys " + ", ".join(FLOOR_KEYS) + " (section 27: walk=4.7 "
                          "tasks=0.17 goal=0.005 EMD=0.11 sum=16); with --noise, each measure takes the larger")
@@ -188,7 +208,7 @@ def main() -> None:
         cells = [f"{m} " + " / ".join(FORMATS[m][0].format(v) for v in vals) + f" ({FORMATS[m][1].format(sum(vals) / len(vals))})"
                  for m, vals in res.items() if not (name == "base" and m == "> base")]
         if name != "base" and name in pushes:
-            failed = rule_failures(base_res, res, pushes["base"], pushes[name], noise)
+            failed = rule_failures(base_res, res, pushes["base"], pushes[name], noise, args.rule)
             cells.append(f"pushes {pushes[name]}/128  rule: " + ("passes" if not failed else "fails " + ", ".join(failed)))
         print(f"{name:24s} " + "  ".join(cells))
     if args.noise or given:

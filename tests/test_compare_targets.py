@@ -186,3 +186,35 @@ def test_floors_given_on_the_command_line_widen_the_rule_as_copies_do(tmp_path, 
         with pytest.raises(SystemExit):
             compare_targets.main()
         assert f"--floors '{bad}': {message}" in capsys.readouterr().err
+
+
+def test_the_no_loss_rule_asks_for_no_loss_and_two_gains_beyond_the_floors(tmp_path, capsys, monkeypatch):
+    base = two_seeds(tmp_path, "base", 10.0, 5.0, beats_floors=40, goal_success=0.1, tracking_emd=5.0)
+    b = compare_targets.compare(base, base)
+    floor = {"walk": 4.7, "tasks > floors": 0.17, "goal": 0.005, "EMD": 0.11, "sum": 16.0}
+
+    def cand(name, walk, jump, **measures):
+        return compare_targets.compare(base, two_seeds(tmp_path, name, walk, jump, **measures))
+
+    # walk and sum level with the base; goals and tracking better by more than the floors: ships under no-loss only
+    level = cand("level", 10.0, 5.0, beats_floors=40, goal_success=0.2, tracking_emd=4.5)
+    assert compare_targets.rule_failures(b, level, 95, 95, floor) == ["walk", "sum"]
+    assert compare_targets.rule_failures(b, level, 95, 95, floor, rule="no-loss") == []
+    # one gain (goals) is not enough; a walk lost beyond its floor fails even with two gains
+    one_gain = cand("one", 10.0, 5.0, beats_floors=40, goal_success=0.2, tracking_emd=5.0)
+    assert compare_targets.rule_failures(b, one_gain, 95, 95, floor, rule="no-loss") == ["two gains"]
+    lost_walk = cand("lost", 5.0, 5.0, beats_floors=40, goal_success=0.2, tracking_emd=4.5)
+    assert compare_targets.rule_failures(b, lost_walk, 95, 95, floor, rule="no-loss") == ["walk"]   # sum -5: within 16
+    with pytest.raises(ValueError, match="rule 'best'"):
+        compare_targets.rule_failures(b, level, 95, 95, floor, rule="best")
+
+    argv = ["compare_targets.py", "--base", *map(str, base), "--candidate", "C",
+            *map(str, two_seeds(tmp_path, "c", 10.0, 5.0, beats_floors=40, goal_success=0.2, tracking_emd=4.5)),
+            "--pushes", "base", "95", "--pushes", "C", "95",
+            "--floors", "walk=4.7", "tasks=0.17", "goal=0.005", "EMD=0.11", "sum=16"]
+    monkeypatch.setattr("sys.argv", argv + ["--rule", "no-loss"])
+    compare_targets.main()
+    assert "rule: passes" in capsys.readouterr().out
+    monkeypatch.setattr("sys.argv", argv)
+    compare_targets.main()
+    assert "rule: fails walk, sum" in capsys.readouterr().out
