@@ -55,6 +55,10 @@ def test_stored_reward_prompts_are_the_ones_its_states_give():
     bfm = BFM.pretrained()
     stored = bfm.reward_prompts
     assert stored is not None and set(stored.z) == set(TASKS) and stored.states == len(bfm.reward_buffer["qpos"])
+    # They were inferred at export from the same 50,000 states in float32, before the kept copy was rounded to
+    # float16: the z's the kept states give agree to a cosine of 0.99999 (another draw of states: ~0.95).
     for task in ("move-ego-0-0", "move-ego-0-2", "split-1", "raisearms-m-h"):
         from_states = bfm.prompt.reward(task, n=10**6)   # n past the sample: inferred from every state, not stored
-        np.testing.assert_allclose(bfm.prompt.reward(task), from_states, atol=1e-4)  # |z| = 8; threads reorder sums
+        z = bfm.prompt.reward(task)
+        np.testing.assert_array_equal(z, stored.z[task])  # the stored z is the one answered
+        assert z @ from_states / (np.linalg.norm(z) * np.linalg.norm(from_states)) > 0.9999, task
