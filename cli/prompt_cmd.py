@@ -177,7 +177,8 @@ def prompt_command(
     video: Optional[Path] = typer.Option(None, "--video", help=VIDEO_HELP),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial state."),
     method: Optional[str] = typer.Option(None, "--method", help="With --reward: reward inference, weighted (paper, "
-                                         "the default) or regression."),
+                                         "the default) or regression. With --goal: backward (z = B(g), paper, the "
+                                         "default), states (the goal as a reward on visited states) or mix."),
     device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
     refine: int = typer.Option(0, "--refine", min=0, help="With --reward or --goal: improve the inferred z by this "
                                "many generations of rollouts (cross-entropy search on the z sphere, weights "
@@ -196,8 +197,8 @@ def prompt_command(
     given = [x for x in (reward, goal, imitate) if x is not None]
     if len(given) != 1:
         raise typer.BadParameter("give exactly one of --reward, --goal or --imitate")
-    if method is not None and reward is None:
-        raise typer.BadParameter("--method chooses how a reward is inferred: it applies to --reward only")
+    if method is not None and imitate is not None:
+        raise typer.BadParameter("--method chooses how a reward or a goal is inferred: it does not apply to --imitate")
     if refine and imitate is not None:
         raise typer.BadParameter("--refine applies to --reward and --goal: a clip has no objective to search on")
     if video is not None:
@@ -207,7 +208,7 @@ def prompt_command(
     if reward is not None:
         z, title = bfm.prompt.reward(reward, method=method or "weighted"), f"reward {reward}"
     elif goal is not None:
-        z, title = bfm.prompt.goal(goal), f"goal {goal}"
+        z, title = bfm.prompt.goal(goal, method=method or "backward"), f"goal {goal}"
         target = goal_observation(goal, bfm.obs_dim)[0]
     else:
         clip = _load_clip(imitate)

@@ -237,9 +237,9 @@ class BFM:
         """z for a reward task name (or callable); see `Prompt.reward`."""
         return self.prompt.reward(task, **kwargs)
 
-    def goal_z(self, goal: Any) -> np.ndarray:
+    def goal_z(self, goal: Any, **kwargs: Any) -> np.ndarray:
         """z for a goal observation, qpos pose or goal name; see `Prompt.goal`."""
-        return self.prompt.goal(goal)
+        return self.prompt.goal(goal, **kwargs)
 
     def track_z(self, obs_seq: Any) -> np.ndarray:
         """(T-1, z_dim) per-step zs to track a motion; see `Prompt.track`."""

@@ -7,7 +7,9 @@ sqrt(d) sphere that the policy was trained on:
   (τ = 10, up to 100k samples), or the plain FB regression z ∝ Σ r(s') B(s'). A checkpoint may store the z's of
   the named tasks, regressed at export on more states than it keeps (`fbcpr.reward_prompts`): those answer by
   default;
-- goal: z = B(g), with zero velocities when the goal is a pose;
+- goal: z = B(g), with zero velocities when the goal is a pose (the paper's, `backward`); or the goal as a reward
+  on the reward-inference buffer, r(s') = exp(-d_smpl(s', g) / 2), inferred as a reward is (`states`): states
+  the model visited, where B(g) of a motionless pose is not; or the projected sum of both (`mix`);
 - track: z_t ∝ Σ_{j=t+1}^{t+L} B(s_j), the ER_FB encoding of the next L states (L = training sequence length),
   the window shrinking at the end of the clip;
 - imitate: ER_FB of the whole clip (mean of B over its states);
@@ -38,6 +40,11 @@ GoalSpec = Union[str, np.ndarray, torch.Tensor, Sequence[float]]
 MotionSpec = Union["Clip", str, Path, np.ndarray, torch.Tensor]
 
 N_REWARD_SAMPLES = 100_000
+#: How a goal becomes a z (see the module docstring).
+GoalMethod = Literal["backward", "states", "mix"]
+GOAL_METHODS: tuple[str, ...] = ("backward", "states", "mix")
+#: d_smpl scale of the `states` goal reward exp(-d / scale): the goal metric's threshold beta (2)
+GOAL_REWARD_SCALE = 2.0
 
 
 class PromptError(FBCPRError, ValueError):
@@ -98,9 +105,22 @@ class Prompt:
         return None if z is None else z.copy()
 
     # ------------------------------------------------------------------------------------------- goals
-    def goal(self, target: GoalSpec) -> np.ndarray:
-        """z = B(g) for a goal name, a qpos pose (velocities set to zero) or an observation."""
-        return self._project(self.bfm.backward(goal_observation(target, self.bfm.obs_dim), as_tensor=True)[0])
+    def goal(self, target: GoalSpec, method: GoalMethod = "backward") -> np.ndarray:
+        """z for a goal name, a qpos pose (velocities set to zero) or an observation: B(g) (`backward`), the goal as
+        a reward on the states the model visited (`states`), or both (`mix`)."""
+        if method not in GOAL_METHODS:
+            raise PromptError(f"unknown goal inference method {method!r}: use one of {', '.join(GOAL_METHODS)}")
+        obs = goal_observation(target, self.bfm.obs_dim)
+        z_pose = self._project(self.bfm.backward(obs, as_tensor=True)[0])
+        if method == "backward":
+            return z_pose
+        if self.bfm.reward_buffer is None:
+            raise PromptError(f"goal method {method!r} infers z from the checkpoint's reward-inference buffer, and "
+                              "this checkpoint ships none: use method 'backward'")
+        z_states = self.reward(goal_reward(obs[0]))
+        if method == "states":
+            return z_states
+        return self._project(torch.as_tensor(z_pose) + torch.as_tensor(z_states))
 
     # ---------------------------------------------------------------------------------------- motions
     def track(self, motion: MotionSpec) -> np.ndarray:
@@ -155,6 +175,16 @@ def regress_reward(fn: Callable[..., np.ndarray], label: str, samples: dict[str,
             "rewards, so there is nothing to infer z from"
         )
     return w.to(dtype=b.dtype, device=b.device) @ b
+
+
+def goal_reward(goal_obs: np.ndarray, scale: float = GOAL_REWARD_SCALE) -> Callable[..., np.ndarray]:
+    """r(s') = exp(-d_smpl(s', g) / scale): 1 at the goal pose, and it falls off with the goal metric's distance."""
+    from fbcpr.evaluation.metrics import d_smpl
+
+    def goal_proximity_reward(next_obs: np.ndarray, *_: object) -> np.ndarray:
+        return np.exp(-d_smpl(next_obs, goal_obs) / scale)
+
+    return goal_proximity_reward
 
 
 def reward_fn(task: RewardSpec) -> tuple[Callable[..., np.ndarray], str]:

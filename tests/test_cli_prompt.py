@@ -15,6 +15,7 @@ import torch
 from typer.testing import CliRunner
 
 from conftest import humanoid_states
+from fbcpr.bfm import BFM
 from fbcpr.checkpoint import save_checkpoint
 from fbcpr.cli.app import app
 from fbcpr.config import config_from_dict
@@ -86,6 +87,19 @@ def test_prompt_refine_searches_and_saves_the_z(ckpt, tmp_path, flag, value):
     assert z.shape == (8,) and np.isclose(np.linalg.norm(z), np.sqrt(8), rtol=1e-5)
 
 
+def test_prompt_goal_method_chooses_the_goal_inference(ckpt, tmp_path):
+    zs = {}
+    for method in ("backward", "mix"):
+        out = tmp_path / f"{method}.npy"
+        res = run("prompt", ckpt, "--goal", "t_pose", "--method", method, "--steps", "2", "--save-z", out)
+        assert res.exit_code == 0, res.output
+        zs[method] = np.load(out)
+    bfm = BFM.load(ckpt)
+    np.testing.assert_allclose(zs["backward"], bfm.prompt.goal("t_pose"), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(zs["mix"], bfm.prompt.goal("t_pose", method="mix"), rtol=1e-5, atol=1e-6)
+    assert np.linalg.norm(zs["mix"] - zs["backward"]) > 1e-3
+
+
 def test_prompt_refine_needs_a_reward_or_goal(ckpt, clip_path):
     res = run("prompt", ckpt, "--imitate", clip_path, "--refine", "1")
     assert res.exit_code != 0 and "--refine applies to --reward and --goal" in res.output
@@ -117,7 +131,8 @@ def test_timeline_runs_every_segment(ckpt, clip_path, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["prompt", "{ckpt}", "--reward", "fly-to-moon"], "unknown reward task 'fly-to-moon'"),
     (["prompt", "{ckpt}", "--goal", "t_pose", "--reward", "jump-2"], "exactly one of"),
-    (["prompt", "{ckpt}", "--goal", "t_pose", "--method", "regression"], "applies to --reward only"),
+    (["prompt", "{ckpt}", "--goal", "t_pose", "--method", "regression"], "unknown goal inference method 'regression'"),
+    (["prompt", "{ckpt}", "--imitate", "walk", "--method", "mix"], "does not apply to --imitate"),
     (["prompt", "{missing}", "--goal", "t_pose"], "no such checkpoint directory"),
     (["track", "{ckpt}", "{missing}.npz"], "motion clip not found"),
     (["timeline", "{ckpt}", "jump-2:abc"], "not a number"),

@@ -52,6 +52,31 @@ def test_goal_z_is_normalized_b_of_goal(bfm):
     assert np.linalg.norm(expected - bfm.prompt.goal(obs)) > 1e-3
 
 
+def test_goal_from_states_is_the_weighted_regression_of_the_goal_proximity(bfm):
+    from fbcpr.evaluation.metrics import d_smpl
+
+    buf, goal = bfm.reward_buffer, goal_obs("t_pose")
+    r = np.exp(-d_smpl(buf["next_obs"], goal) / 2.0)
+    assert 0 < r.min() < r.max() <= 1
+    b = b_by_hand(bfm, buf["next_obs"])
+    states = sphere((np.exp(10 * (r - r.max())) * r) @ b)
+    np.testing.assert_allclose(bfm.prompt.goal("t_pose", method="states"), states, rtol=1e-4, atol=1e-4)
+    pose = sphere(b_by_hand(bfm, goal[None])[0])
+    np.testing.assert_allclose(bfm.prompt.goal("t_pose", method="mix"), sphere(pose + states), rtol=1e-4, atol=1e-4)
+    assert np.linalg.norm(states - pose) > 1e-2  # the three methods are different prompts
+    # the reward peaks at the goal itself
+    assert np.exp(-d_smpl(goal, goal) / 2.0) == 1.0
+
+
+def test_goal_methods_that_need_states_say_so_without_a_buffer(bfm):
+    bare = BFM(bfm.model, bfm.config)
+    for method in ("states", "mix"):
+        with pytest.raises(PromptError, match=f"goal method '{method}'.*reward-inference buffer"):
+            bare.prompt.goal("t_pose", method=method)
+    with pytest.raises(PromptError, match="unknown goal inference method 'nearest'"):
+        bfm.prompt.goal("t_pose", method="nearest")
+
+
 def test_tracking_z_is_the_windowed_mean(bfm):
     obs = humanoid_states(11, seed=2)["next_obs"]
     zs = bfm.prompt.track(obs)
