@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Union
+from typing import TYPE_CHECKING, Literal, Union, get_args
 
 import numpy as np
 import torch
@@ -42,7 +42,7 @@ MotionSpec = Union["Clip", str, Path, np.ndarray, torch.Tensor]
 N_REWARD_SAMPLES = 100_000
 #: How a goal becomes a z (see the module docstring).
 GoalMethod = Literal["backward", "states", "mix"]
-GOAL_METHODS: tuple[str, ...] = ("backward", "states", "mix")
+GOAL_METHODS: tuple[str, ...] = get_args(GoalMethod)
 #: d_smpl scale of the `states` goal reward exp(-d / scale): the goal metric's threshold beta (2)
 GOAL_REWARD_SCALE = 2.0
 
