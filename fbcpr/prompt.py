@@ -111,15 +111,15 @@ class Prompt:
         if method not in GOAL_METHODS:
             raise PromptError(f"unknown goal inference method {method!r}: use one of {', '.join(GOAL_METHODS)}")
         obs = goal_observation(target, self.bfm.obs_dim)
-        z_pose = self._project(self.bfm.backward(obs, as_tensor=True)[0])
         if method == "backward":
-            return z_pose
+            return self._project(self.bfm.backward(obs, as_tensor=True)[0])
         if self.bfm.reward_buffer is None:
             raise PromptError(f"goal method {method!r} infers z from the checkpoint's reward-inference buffer, and "
                               "this checkpoint ships none: use method 'backward'")
         z_states = self.reward(goal_reward(obs[0]))
         if method == "states":
             return z_states
+        z_pose = self._project(self.bfm.backward(obs, as_tensor=True)[0])
         return self._project(torch.as_tensor(z_pose) + torch.as_tensor(z_states))
 
     # ---------------------------------------------------------------------------------------- motions

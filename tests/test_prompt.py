@@ -9,7 +9,7 @@ from conftest import humanoid_states
 from fbcpr.bfm import BFM
 from fbcpr.config import config_from_dict
 from fbcpr.fb_cpr.model import FBCPRModel
-from fbcpr.prompt import PromptError
+from fbcpr.prompt import PromptError, goal_reward
 from fbcpr.timeline import Timeline, parse_timeline
 from humanoid_env.model import NV, load_model
 from humanoid_env.observation import observe
@@ -63,9 +63,10 @@ def test_goal_from_states_is_the_weighted_regression_of_the_goal_proximity(bfm):
     np.testing.assert_allclose(bfm.prompt.goal("t_pose", method="states"), states, rtol=1e-4, atol=1e-4)
     pose = sphere(b_by_hand(bfm, goal[None])[0])
     np.testing.assert_allclose(bfm.prompt.goal("t_pose", method="mix"), sphere(pose + states), rtol=1e-4, atol=1e-4)
-    assert np.linalg.norm(states - pose) > 1e-2  # the three methods are different prompts
-    # the reward peaks at the goal itself
-    assert np.exp(-d_smpl(goal, goal) / 2.0) == 1.0
+    assert np.linalg.norm(states - pose) > 1e-2  # B(g) and the states' z are different prompts
+    # the package's goal reward is the formula above, and it peaks at the goal itself
+    np.testing.assert_allclose(goal_reward(goal)(buf["next_obs"]), r, rtol=1e-12)
+    assert goal_reward(goal)(goal[None])[0] == 1.0
 
 
 def test_goal_methods_that_need_states_say_so_without_a_buffer(bfm):
