@@ -6,7 +6,7 @@ Each row runs `--updates` FB-CPR updates back to back, as the trainer does betwe
 drawn just before it, and waits for the device once at the end:
 - `host`: the replay batch gathered by numpy from a `ReplayBuffer` and the demonstration windows from the
   `MotionLibrary`, then copied to the device (the default);
-- `device`: both drawn by `fbcpr.device_batches.DeviceBatches` from its device copies;
+- `device`: both drawn by `fbcpr.train.device_batches.DeviceBatches` from its device copies;
 - `update only`, the reference measured in the same run: the same updates on one batch already on the device.
 The `draw` column times the draw alone. The buffer holds `--rows` random humanoid-sized transitions (obs 358,
 action 69) and the windows come from the clips in `--motions`. On a GPU, `--graph` adds the rows with the update
@@ -21,10 +21,10 @@ from typing import Callable
 import numpy as np
 import torch
 
-from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.config import config_from_dict
-from fbcpr.device_batches import DeviceBatches
-from fbcpr.fb_cpr.agent import FBCPRAgent
+from fbcpr.train.buffer import ReplayBuffer, transition_specs
+from fbcpr.core.config import config_from_dict
+from fbcpr.train.device_batches import DeviceBatches
+from fbcpr.methods.fb_cpr.agent import FBCPRAgent
 from motions.library import MotionLibrary
 
 SIZES = {"tiny": 256, "small": 256, "paper-S": 1024}

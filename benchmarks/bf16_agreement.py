@@ -1,6 +1,6 @@
 """How far the bf16 update's gradients are from float32's, next to how far two float32 batches' gradients are.
 
-    python benchmarks/bf16_agreement.py configs/cpu.yaml --init-from pretrained --steps 4096 --batches 8
+    python benchmarks/bf16_agreement.py fbcpr/configs/cpu.yaml --init-from pretrained --steps 4096 --batches 8
 
 A warm-started run of CONFIG collects STEPS env steps with the loaded policy (no update), and on each of BATCHES
 replay batches the update's losses and gradients are computed twice, in float32 and under `agent.bf16`
@@ -8,7 +8,7 @@ autocast, from the same weights, normaliser and random draws. Per optimised netw
 between the two gradients and the relative size of their difference, and per loss the relative difference.
 The reference, measured in the same run, is float32 against float32 on the next batch: the noise of the
 minibatch gradient that training follows anyway. bf16 errors well below it change the update less than the
-choice of batch does; docs/results.md section 28 uses it before comparing learning.
+choice of batch does; lab/log.md section 28 uses it before comparing learning.
 """
 from __future__ import annotations
 
@@ -20,9 +20,9 @@ import tempfile
 import numpy as np
 import torch
 
-from fbcpr.config import load_config
-from fbcpr.fb_cpr.agent import FBCPRAgent
-from fbcpr.trainer import Trainer
+from fbcpr.core.config import load_config
+from fbcpr.methods.fb_cpr.agent import FBCPRAgent
+from fbcpr.train.trainer import Trainer
 
 
 def gradients(agent: FBCPRAgent, batch: dict, windows: torch.Tensor, bf16: bool) -> tuple[dict, dict]:

@@ -30,8 +30,8 @@ import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
 
-from fbcpr.config import dump_config, find_config, load_config
-from fbcpr.methods import get_method
+from fbcpr.core.config import dump_config, find_config, load_config
+from fbcpr.core.registry import get_method
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -23,9 +23,9 @@ import time
 import numpy as np
 import torch
 
-from fbcpr.bfm import BFM
-from fbcpr.config import config_from_dict
-from fbcpr.fb_cpr.model import FBCPRModel
+from fbcpr.inference.bfm import BFM
+from fbcpr.core.config import config_from_dict
+from fbcpr.methods.fb_cpr.model import FBCPRModel
 
 TASKS = ["move-ego-0-2", "crouch-0", "raisearms-h-l", "sitonground", "move-ego-0-2*raisearms-h-h"]
 

@@ -20,11 +20,11 @@ import time
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from fbcpr.fb_cpr import losses
-from fbcpr.fb_cpr.agent import FBCPRAgent
-from fbcpr.config import config_from_dict
-from fbcpr.cuda_graph import make_capturable
-from fbcpr.networks import project_sphere
+from fbcpr.methods.fb_cpr import losses
+from fbcpr.methods.fb_cpr.agent import FBCPRAgent
+from fbcpr.core.config import config_from_dict
+from fbcpr.nn.cuda_graph import make_capturable
+from fbcpr.nn.networks import project_sphere
 
 SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}
 #: The graphed and eager twins agree when every difference stays below this, or below FLOOR_FACTOR times the

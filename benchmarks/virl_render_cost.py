@@ -2,7 +2,7 @@
 
     python benchmarks/virl_render_cost.py [--frames 30] [--size 64]
 
-Renders poses of the DeepMimic walk clip with the tracking camera (`fbcpr.virl.frames.render_clip`, one MuJoCo
+Renders poses of the DeepMimic walk clip with the tracking camera (`fbcpr.rewards.virl.frames.render_clip`, one MuJoCo
 scene each), and reports the time per frame next to the time per env step of the humanoid (16 envs, random
 actions: the reference, measured in the same run) and per frame of the point-mass rasteriser (batched torch).
 Last line: RESULT render_ms=<x> env_step_ms=<y> toy_frame_us=<z> (per frame, per env step, per toy frame).
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fbcpr.virl.frames import rasterize_points, render_clip
+from fbcpr.rewards.virl.frames import rasterize_points, render_clip
 from motions.library import MotionLibrary
 
 ROOT = Path(__file__).resolve().parents[1]

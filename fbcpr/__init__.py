@@ -9,7 +9,7 @@ from typing import Any
 __version__ = "0.1.0"
 __all__ = ["BFM", "FBCPRError", "Prompt", "Timeline", "__version__"]
 
-_LAZY = {"BFM": "fbcpr.bfm", "FBCPRError": "fbcpr.errors", "Prompt": "fbcpr.prompt", "Timeline": "fbcpr.timeline"}
+_LAZY = {"BFM": "fbcpr.inference.bfm", "FBCPRError": "fbcpr.core.errors", "Prompt": "fbcpr.inference.prompt", "Timeline": "fbcpr.inference.timeline"}
 
 
 def __getattr__(name: str) -> Any:

@@ -1,7 +1,7 @@
 """Demonstrations with actions: a clip together with the actions that produced it in the env.
 
 A motion clip says where the body went; a demonstration also says how. The sampling planner
-(`humanoid_env.planner`, `benchmarks/getup_planner.py --save`) writes them: its motions are what the env did with
+(`planner`, `lab/experiments/getup_planner.py --save`) writes them: its motions are what the env did with
 its actions, so a learner can take them as transitions (`train.demonstrations`), which a clip of mocap cannot give.
 On disk a demonstration is a clip `<name>.npz` and, beside it, `<name>.actions.npz` with the T actions between
 its T + 1 frames and the action mapping they were taken under.

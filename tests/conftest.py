@@ -53,9 +53,9 @@ def tiny_humanoid_checkpoint(root, name: str, seed: int, preset: str = "tiny", m
     normaliser: distinct weights per seed, for tests of what works on whole models."""
     import torch
 
-    from fbcpr.checkpoint import save_checkpoint
-    from fbcpr.config import config_from_dict
-    from fbcpr.fb_cpr.model import FBCPRModel
+    from fbcpr.core.checkpoint import save_checkpoint
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
 
     torch.manual_seed(seed)
     cfg = config_from_dict({"model": {"preset": preset, "obs_dim": 358, "action_dim": 69},
@@ -71,7 +71,7 @@ def toy_run_config(algorithm: str = "fb_cpr", model: dict | None = None, agent: 
                    train: dict | None = None):
     """A tiny training config on the toy env for trainer tests: 4 envs, 30-step episodes, a 40-step warm-up, no
     evaluation or periodic checkpoint, one torch thread. Each section's keys override these."""
-    from fbcpr.config import config_from_dict
+    from fbcpr.core.config import config_from_dict
 
     return config_from_dict({
         "algorithm": algorithm,

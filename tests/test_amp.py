@@ -4,13 +4,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fbcpr.amp.config import AMPConfig
-from fbcpr.amp.reward import AMPReward, window_transitions
-from fbcpr.config import load_config
-from fbcpr.protocols import ImitationReward
-from fbcpr.toy import pointmass as pm
-from fbcpr.toy.evaluate import imitation_metrics
-from fbcpr.trainer import Trainer
+from fbcpr.rewards.amp.config import AMPConfig
+from fbcpr.rewards.amp.reward import AMPReward, window_transitions
+from fbcpr.core.config import load_config
+from fbcpr.core.protocols import ImitationReward
+from fbcpr.envs import toy as pm
+from fbcpr.eval.toy import imitation_metrics
+from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

@@ -8,8 +8,8 @@ import torch
 import yaml
 
 from conftest import tiny_humanoid_checkpoint
-from fbcpr.config import config_from_dict
-from fbcpr.fb_cpr.agent import FBCPRAgent
+from fbcpr.core.config import config_from_dict
+from fbcpr.methods.fb_cpr.agent import FBCPRAgent
 
 SCRIPT = Path(__file__).parents[1] / "benchmarks" / "bf16_agreement.py"
 spec = importlib.util.spec_from_file_location("bf16_agreement", SCRIPT)

@@ -15,9 +15,9 @@ import yaml
 
 from conftest import humanoid_states
 from fbcpr import BFM
-from fbcpr.checkpoint import CheckpointError, save_checkpoint
-from fbcpr.config import config_from_dict
-from fbcpr.fb_cpr.model import FBCPRModel
+from fbcpr.core.checkpoint import CheckpointError, save_checkpoint
+from fbcpr.core.config import config_from_dict
+from fbcpr.methods.fb_cpr.model import FBCPRModel
 
 torch.set_num_threads(1)
 SHA = "0123456789abcdef0123456789abcdef01234567"
@@ -243,7 +243,7 @@ def test_push_to_hub_uploads_the_staged_folder(bfm, monkeypatch):
 
 
 def test_bfm_is_an_evaluation_agent(bfm):
-    from fbcpr.evaluation.agents import Agent
+    from fbcpr.eval.agents import Agent
 
     assert isinstance(bfm, Agent)
     assert bfm.goal_z(np.zeros(358, np.float32)).shape == (8,)

@@ -15,11 +15,11 @@ import torch
 from typer.testing import CliRunner
 
 from conftest import humanoid_states
-from fbcpr.bfm import BFM
-from fbcpr.checkpoint import save_checkpoint
+from fbcpr.inference.bfm import BFM
+from fbcpr.core.checkpoint import save_checkpoint
 from fbcpr.cli.app import app
-from fbcpr.config import config_from_dict
-from fbcpr.fb_cpr.model import FBCPRModel
+from fbcpr.core.config import config_from_dict
+from fbcpr.methods.fb_cpr.model import FBCPRModel
 from humanoid_env.model import load_model
 from humanoid_env.render import renderer_available
 from motions.clip import from_qpos, save_clip

@@ -11,9 +11,9 @@ import pytest
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.cuda_graph import GraphedStep, make_capturable
-from fbcpr.fb_cpr import losses
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.nn.cuda_graph import GraphedStep, make_capturable
+from fbcpr.methods.fb_cpr import losses
 from test_fbcpr_agent import make_agent, make_batch
 
 torch.set_num_threads(1)

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import torch
 
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.trainer import Trainer
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.train.trainer import Trainer
 from humanoid_env.model import NU, NV, default_qpos
-from humanoid_env.planner import PlannerConfig, TrackingPlanner
+from humanoid_env.env import HumanoidEnv
 from motions.clip import Clip
 from motions.library import MotionLibrary
 from motions.demonstrations import (
@@ -24,13 +24,19 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def planned():
-    """A short planned motion: 6 steps of holding the stand after a shove."""
+    """A short motion with the actions that made it: 6 steps of small random actions after a shove."""
     q0, v0 = default_qpos(), np.zeros(NV)
     v0[0] = 0.4
-    planner = TrackingPlanner(default_qpos()[None], PlannerConfig(samples=3, horizon=4, knot_every=2))
-    m = planner.run(q0, v0, steps=6)
-    clip = Clip(qpos=m.qpos, qvel=m.qvel, obs=m.obs, name="shoved", source="planner test", license="CC0")
-    return Demonstration(clip, m.actions, planner.amap.mapping)
+    env = HumanoidEnv()
+    obs, info = env.reset(seed=0, options={"qpos": q0, "qvel": v0})
+    rng = np.random.default_rng(0)
+    qpos, qvel, seen, actions = [info["qpos"]], [info["qvel"]], [obs], rng.uniform(-0.1, 0.1, (6, NU))
+    for a in actions:
+        obs, _, _, _, info = env.step(a)
+        qpos.append(info["qpos"]), qvel.append(info["qvel"]), seen.append(obs)
+    clip = Clip(qpos=np.array(qpos), qvel=np.array(qvel), obs=np.array(seen, dtype=np.float32), name="shoved",
+                source="random actions", license="CC0")
+    return Demonstration(clip, actions.astype(np.float32), env.action_map.mapping)
 
 
 def test_a_saved_demonstration_reads_back(tmp_path, planned):

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.device_batches import DeviceBatches
-from fbcpr.trainer import Trainer, _memory_bytes, check_memory
+from fbcpr.train.buffer import ReplayBuffer, transition_specs
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.train.device_batches import DeviceBatches
+from fbcpr.train.trainer import Trainer, _memory_bytes, check_memory
 from motions.clip import from_qpos
 from test_fbcpr_trainer import state_of
 from test_fbcpr_trainer import tiny_cfg as trainer_cfg

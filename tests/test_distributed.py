@@ -1,4 +1,4 @@
-"""Data-parallel training (fbcpr.distributed) on 2 CPU ranks over gloo: identical replicas, the split update equals
+"""Data-parallel training (fbcpr.nn.distributed) on 2 CPU ranks over gloo: identical replicas, the split update equals
 the single-process one, exact normaliser merge, sharded priorities, and a killed rank ending the run cleanly."""
 import os
 import signal
@@ -14,13 +14,13 @@ import torch
 import torch.multiprocessing as mp
 from safetensors.torch import load_file, save_file
 
-from fbcpr import distributed
-from fbcpr.checkpoint import load_checkpoint
-from fbcpr.config import ConfigError, config_from_dict, dump_config
-from fbcpr.normalizer import RunningNormalizer
-from fbcpr.td3.agent import TD3Agent
-from fbcpr.toy import pointmass as pm
-from fbcpr.trainer import Trainer
+from fbcpr.nn import distributed
+from fbcpr.core.checkpoint import load_checkpoint
+from fbcpr.core.config import ConfigError, config_from_dict, dump_config
+from fbcpr.nn.normalizer import RunningNormalizer
+from fbcpr.methods.td3.agent import TD3Agent
+from fbcpr.envs import toy as pm
+from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[1]
@@ -206,7 +206,7 @@ def test_a_two_rank_checkpoint_resumes_on_one_process(two_ranks, tmp_path):
 
 
 def test_world_size_and_backend_limits_are_config_errors(monkeypatch):
-    from fbcpr.trainer import check_world_size
+    from fbcpr.train.trainer import check_world_size
 
     check_world_size(fbcpr_cfg(), 4)  # 16 steps = 4 ranks x 4 envs
     with pytest.raises(ConfigError, match=r"^train.rollout_steps: .* world sizes that fit: \[1, 2, 4\]"):

@@ -22,9 +22,9 @@ def snippets(path):
 def workdir(tmp_path_factory):
     """runs/demo, runs/small (a tiny humanoid checkpoint whose reward buffer holds clip and goal-pose states, so
     the documented reward prompts have states they reward) and data/clips (the synthetic clips)."""
-    from fbcpr.checkpoint import save_checkpoint
-    from fbcpr.config import config_from_dict
-    from fbcpr.fb_cpr.model import FBCPRModel
+    from fbcpr.core.checkpoint import save_checkpoint
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
     from humanoid_env.tasks import GOALS, goal_obs, goal_qpos
     from motions.clip import save_clip
     from motions.synthetic import default_clips

@@ -6,8 +6,8 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from fbcpr.evaluation.agents import Agent, RandomAgent, ZeroAgent, make_agent
-from fbcpr.evaluation.runner import evaluate
+from fbcpr.eval.agents import Agent, RandomAgent, ZeroAgent, make_agent
+from fbcpr.eval.runner import evaluate
 from humanoid_env.actions import ActionMap
 from humanoid_env.model import load_model
 from humanoid_env.tasks import goal_obs, goal_qpos
@@ -139,10 +139,10 @@ def test_cli_eval_on_a_tiny_checkpoint(tmp_path):
     """A real (untrained, tiny) FB-CPR checkpoint goes through all three suites via BFM.load."""
     import torch
 
-    from fbcpr.checkpoint import save_checkpoint
+    from fbcpr.core.checkpoint import save_checkpoint
     from fbcpr.cli import eval_cmd
-    from fbcpr.config import config_from_dict
-    from fbcpr.fb_cpr.model import FBCPRModel
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
 
     torch.manual_seed(0)
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
@@ -164,7 +164,7 @@ def test_cli_eval_on_a_tiny_checkpoint(tmp_path):
 
 
 def test_upright_measures_separate_holding_still_from_random_actions():
-    from fbcpr.evaluation.upright import upright
+    from fbcpr.eval.upright import upright
 
     zero, rand = upright(ZeroAgent(), episodes=2, steps=45), upright(RandomAgent(0), episodes=2, steps=45)
     assert zero.median_seconds == pytest.approx(1.5)           # the rest pose holds for the whole 1.5 s
@@ -172,7 +172,7 @@ def test_upright_measures_separate_holding_still_from_random_actions():
 
 
 def test_seconds_upright_counts_until_the_first_drop_and_a_given_z_reaches_the_agent():
-    from fbcpr.evaluation.upright import pelvis_heights, seconds_upright
+    from fbcpr.eval.upright import pelvis_heights, seconds_upright
     from humanoid_env.inits import DefaultInit
 
     h = np.full((60, 3), 0.9)
@@ -204,7 +204,7 @@ class Unpromptable(PoseOracle):
         self.stop_at = stop_at
 
     def reward_z(self, reward):
-        from fbcpr.prompt import PromptError
+        from fbcpr.inference.prompt import PromptError
 
         if reward == "jump-2":
             raise PromptError("reward 'jump-2' is zero on all 1024 buffer samples")
@@ -219,7 +219,7 @@ class Unpromptable(PoseOracle):
 def test_a_task_that_cannot_be_prompted_is_skipped_and_results_are_written_as_they_come(tmp_path, library):
     from rich.console import Console
 
-    from fbcpr.evaluation.report import print_report
+    from fbcpr.eval.report import print_report
 
     out = tmp_path / "ev"
     res = evaluate(Unpromptable(), "all", tasks=["jump-2", "move-ego-0-0", "t_pose"], episodes=1, steps=3,
@@ -239,7 +239,7 @@ def test_a_task_that_cannot_be_prompted_is_skipped_and_results_are_written_as_th
 
 
 def test_eval_says_what_it_will_simulate(library):
-    from fbcpr.evaluation.runner import plan
+    from fbcpr.eval.runner import plan
 
     chosen = {"reward": ["a", "b"], "goal": ["t_pose"], "tracking": ["stand"]}
     text = plan(chosen, ("reward", "goal", "tracking"), 10, 300, library)
@@ -247,10 +247,10 @@ def test_eval_says_what_it_will_simulate(library):
                     "1 clips to track: 9,029 env steps")
 def test_single_task_checkpoints_are_evaluated_on_their_own_task(tmp_path, library):
     """A TD3 checkpoint runs its reward task only; an imitation-trained one tracks the clips with NEAR's metrics."""
-    from fbcpr.checkpoint import save_checkpoint
-    from fbcpr.config import config_from_dict
-    from fbcpr.evaluation.agents import SingleTaskAgent
-    from fbcpr.td3.model import TD3Model
+    from fbcpr.core.checkpoint import save_checkpoint
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.eval.agents import SingleTaskAgent
+    from fbcpr.methods.td3.model import TD3Model
 
     def checkpoint(name, reward):
         cfg = config_from_dict({"algorithm": "td3", "agent": {"reward": reward},

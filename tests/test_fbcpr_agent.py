@@ -5,8 +5,8 @@ import math
 import pytest
 import torch
 
-from fbcpr.fb_cpr.agent import TARGETS, FBCPRAgent
-from fbcpr.config import config_from_dict
+from fbcpr.methods.fb_cpr.agent import TARGETS, FBCPRAgent
+from fbcpr.core.config import config_from_dict
 
 torch.set_num_threads(1)
 NETS = ("forward_map", "backward_map", "actor", "critic", "discriminator")
@@ -115,7 +115,7 @@ def test_bf16_switch_trains_in_float32_master_weights():
 
 
 def test_bf16_auto_follows_the_measured_speed(monkeypatch):
-    from fbcpr import precision
+    from fbcpr.nn import precision
 
     cpu = torch.device("cpu")
     assert precision.matmul_seconds(torch.float32, cpu, size=64, repeats=1) > 0
@@ -126,7 +126,7 @@ def test_bf16_auto_follows_the_measured_speed(monkeypatch):
 
 
 def test_bf16_setting_is_validated():
-    from fbcpr.config import ConfigError, config_from_dict
+    from fbcpr.core.config import ConfigError, config_from_dict
 
     assert config_from_dict({"agent": {"bf16": "auto"}}).agent.bf16 == "auto"
     with pytest.raises(ConfigError, match="agent.bf16"):

@@ -9,12 +9,12 @@ import pytest
 import torch
 
 from conftest import toy_run_config
-from fbcpr.checkpoint import CheckpointError
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.fb_cpr.agent import FBCPRAgent
-from fbcpr.fb_cpr.anchor import ActorAnchor
-from fbcpr.fb_cpr.imitation import encode_windows
-from fbcpr.trainer import Trainer
+from fbcpr.core.checkpoint import CheckpointError
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.methods.fb_cpr.agent import FBCPRAgent
+from fbcpr.methods.fb_cpr.anchor import ActorAnchor
+from fbcpr.methods.fb_cpr.imitation import encode_windows
+from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
 
@@ -137,7 +137,7 @@ def test_reward_anchor_holds_the_actor_under_held_reward_prompts_on_the_batch_st
 
 def test_held_reward_prompts_are_the_reward_prompts_of_the_loaded_checkpoint(tmp_path):
     from fbcpr import BFM
-    from fbcpr.checkpoint import load_checkpoint
+    from fbcpr.core.checkpoint import load_checkpoint
     from humanoid_env.tasks import get_reward
     from conftest import tiny_humanoid_checkpoint
 
@@ -177,7 +177,7 @@ def test_held_reward_options_refuse_what_they_cannot_hold(tmp_path):
 
 
 def test_a_run_holding_reward_prompts_keeps_the_loaded_sample_and_prompts_across_a_resume(tmp_path):
-    from fbcpr.checkpoint import latest_checkpoint, load_checkpoint
+    from fbcpr.core.checkpoint import latest_checkpoint, load_checkpoint
 
     sampled = {"reward_buffer_size": 60}
     base = Trainer(toy_cfg(train=sampled), tmp_path / "base", progress=False)

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-import fbcpr.checkpoint as ckpt_mod
-from fbcpr.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from fbcpr.config import config_from_dict
-from fbcpr.fb_cpr.model import FBCPRModel
+import fbcpr.core.checkpoint as ckpt_mod
+from fbcpr.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from fbcpr.core.config import config_from_dict
+from fbcpr.methods.fb_cpr.model import FBCPRModel
 
 torch.set_num_threads(1)
 

@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from fbcpr.config import PRESETS, ConfigError, config_from_dict, dump_config, load_config
+from fbcpr.core.config import PRESETS, ConfigError, config_from_dict, dump_config, load_config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -137,7 +137,7 @@ def test_relative_paths_are_read_from_the_config_folder(tmp_path, monkeypatch):
 
 
 def test_shipped_configs_are_found_by_name(tmp_path, monkeypatch):
-    from fbcpr.config import find_config
+    from fbcpr.core.config import find_config
 
     monkeypatch.chdir(tmp_path)
     assert find_config("small").name == "small.yaml" and find_config("toy.yaml").is_file()
@@ -148,7 +148,7 @@ def test_shipped_configs_are_found_by_name(tmp_path, monkeypatch):
 
 
 def test_env_of_a_model_only_config_is_the_default_humanoid():
-    from fbcpr.config import ModelConfig, env_of
+    from fbcpr.core.config import ModelConfig, env_of
 
     toy = config_from_dict({"env": {"name": "toy"}})
     assert env_of(toy) is toy.env and env_of(toy).name == "toy"

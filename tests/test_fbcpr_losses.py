@@ -4,8 +4,8 @@ import math
 import pytest
 import torch
 
-from fbcpr.fb_cpr import losses
-from fbcpr.networks import Discriminator
+from fbcpr.methods.fb_cpr import losses
+from fbcpr.nn.networks import Discriminator
 
 torch.set_num_threads(1)
 T = torch.tensor
@@ -103,7 +103,7 @@ def test_gradient_penalty_matches_finite_differences():
 
 
 def test_orthonormality_loss_drives_covariance_to_identity():
-    from fbcpr.networks import BackwardNet
+    from fbcpr.nn.networks import BackwardNet
 
     torch.manual_seed(0)
     net = BackwardNet(obs_dim=10, z_dim=4, hidden=32, hidden_layers=1)

@@ -1,16 +1,16 @@
-"""`agent.regulariser: near`: FB-CPR's critic on a z-conditioned NEAR energy (fbcpr/near/conditional.py)."""
+"""`agent.regulariser: near`: FB-CPR's critic on a z-conditioned NEAR energy (fbcpr/rewards/near/conditional.py)."""
 import shutil
 
 import pytest
 import torch
 
 from conftest import toy_run_config
-from fbcpr.checkpoint import CheckpointError
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.fb_cpr.agent import FBCPRAgent
-from fbcpr.near.conditional import ConditionalEnergy
-from fbcpr.near.config import NEARConfig
-from fbcpr.trainer import Trainer
+from fbcpr.core.checkpoint import CheckpointError
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.methods.fb_cpr.agent import FBCPRAgent
+from fbcpr.rewards.near.conditional import ConditionalEnergy
+from fbcpr.rewards.near.config import NEARConfig
+from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
 

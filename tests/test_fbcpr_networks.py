@@ -5,10 +5,10 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from fbcpr.config import config_from_dict
-from fbcpr.fb_cpr.model import FBCPRModel
-from fbcpr.networks import EnsembleLinear, ZConditionedNet
-from fbcpr.normalizer import RunningNormalizer
+from fbcpr.core.config import config_from_dict
+from fbcpr.methods.fb_cpr.model import FBCPRModel
+from fbcpr.nn.networks import EnsembleLinear, ZConditionedNet
+from fbcpr.nn.normalizer import RunningNormalizer
 
 torch.set_num_threads(1)
 

@@ -9,11 +9,11 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.checkpoint import load_checkpoint, save_checkpoint
-from fbcpr.config import config_from_dict, dump_config
-from fbcpr.toy import pointmass as pm
-from fbcpr.trainer import Trainer
+from fbcpr.train.buffer import ReplayBuffer, transition_specs
+from fbcpr.core.checkpoint import load_checkpoint, save_checkpoint
+from fbcpr.core.config import config_from_dict, dump_config
+from fbcpr.envs import toy as pm
+from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
 
@@ -284,7 +284,7 @@ def test_progress_bar_keeps_steps_rate_and_eta_at_80_columns():
     from rich.console import Console
     from rich.progress import Progress
 
-    from fbcpr.trainer import progress_columns
+    from fbcpr.train.trainer import progress_columns
 
     con = Console(width=80, file=io.StringIO())
     bar = Progress(*progress_columns(), console=con, expand=True)
@@ -318,7 +318,7 @@ def test_cuda_without_cuda_leaves_no_run_directory(tmp_path):
 
 
 def test_retention_keeps_the_last_k_and_every_nth(tmp_path):
-    from fbcpr.trainer import prunable_checkpoints
+    from fbcpr.train.trainer import prunable_checkpoints
 
     for step in range(0, 1000, 100):
         (tmp_path / f"step_{step:010d}").mkdir()
@@ -328,7 +328,7 @@ def test_retention_keeps_the_last_k_and_every_nth(tmp_path):
 
 
 def test_memmapped_buffer_is_removed_when_training_ends(tmp_path):
-    from fbcpr.trainer import train
+    from fbcpr.train.trainer import train
 
     train(tiny_cfg(total_env_steps=60, buffer_memmap_mb=0.0), tmp_path, progress=False)
     assert not (tmp_path / "buffer_mmap").exists() and (tmp_path / "checkpoints" / "latest").exists()
@@ -349,7 +349,7 @@ def test_a_deadline_is_kept_to_within_a_step(tmp_path):
 def test_wall_clock_of_training_adds_up_over_resumes(tmp_path):
     import time
 
-    from fbcpr.checkpoint import latest_checkpoint, read_trainer_meta
+    from fbcpr.core.checkpoint import latest_checkpoint, read_trainer_meta
 
     def wall(run):
         rows = [line.split(",") for line in (run / "metrics.csv").read_text().splitlines()[1:]]
@@ -369,7 +369,7 @@ def test_wall_clock_of_training_adds_up_over_resumes(tmp_path):
 @pytest.mark.parametrize("env_threads, want", [(0, None), (3, 3)])
 def test_env_threads_reach_the_env(tmp_path, monkeypatch, env_threads, want):
     """train.env_threads caps the training envs' physics threads (runs sharing a machine); 0 keeps all cores."""
-    import fbcpr.trainer as trainer_mod
+    import fbcpr.train.trainer as trainer_mod
 
     seen = []
     real = trainer_mod.make_env
@@ -386,7 +386,7 @@ def test_env_threads_reach_the_env(tmp_path, monkeypatch, env_threads, want):
 def test_bf16_auto_says_which_precision_it_chose(tmp_path, monkeypatch):
     from dataclasses import replace
 
-    from fbcpr import precision
+    from fbcpr.nn import precision
 
     for bf16_time, chosen in ((0.2, "bf16"), (5.0, "float32")):
         monkeypatch.setattr(precision, "matmul_seconds", lambda dtype, device: bf16_time if dtype == torch.bfloat16 else 1.0)
@@ -399,8 +399,8 @@ def test_bf16_auto_says_which_precision_it_chose(tmp_path, monkeypatch):
 
 
 def test_ranks_take_bf16_only_where_every_rank_chose_it():
-    from fbcpr.distributed import Replicas
-    from fbcpr.trainer import agree_on_bf16
+    from fbcpr.nn.distributed import Replicas
+    from fbcpr.train.trainer import agree_on_bf16
 
     two = Replicas(rank=0, world_size=2)
     for other, mine, agreed in ((1.0, True, True), (0.0, True, False), (1.0, False, False)):

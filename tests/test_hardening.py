@@ -215,7 +215,7 @@ def test_motions_info_lists_good_clips_beside_bad_ones(tmp_path):
     ("model", "z_dim", 10**6), ("agent", "batch_size", 10**9), ("model", "hidden_layers", 10**4),
 ])
 def test_config_ranges_name_the_key(section, key, value):
-    from fbcpr.config import ConfigError, config_from_dict
+    from fbcpr.core.config import ConfigError, config_from_dict
 
     with pytest.raises(ConfigError, match=rf"^{section}\.{key}: must be"):
         config_from_dict({section: {key: value}})
@@ -227,7 +227,7 @@ def test_config_ranges_name_the_key(section, key, value):
     (b"train:\n  seed: \xff\xfe\n", "not UTF-8 text"),
 ])
 def test_bad_config_files_are_config_errors(tmp_path, content, message):
-    from fbcpr.config import ConfigError, load_config
+    from fbcpr.core.config import ConfigError, load_config
 
     path = tmp_path / "c.yaml"
     path.write_bytes(content)
@@ -236,7 +236,7 @@ def test_bad_config_files_are_config_errors(tmp_path, content, message):
 
 
 def test_a_directory_as_config_is_a_config_error(tmp_path):
-    from fbcpr.config import ConfigError, load_config
+    from fbcpr.core.config import ConfigError, load_config
 
     with pytest.raises(ConfigError, match="is a directory"):
         load_config(tmp_path)
@@ -249,16 +249,16 @@ def test_a_directory_as_config_is_a_config_error(tmp_path):
     ("jump-2:inf", "at most 3600"), ("jump-2:nan", "positive number"), ("jump-2:0", "positive number"),
 ])
 def test_timeline_durations_are_bounded(text, message):
-    from fbcpr.prompt import PromptError
-    from fbcpr.timeline import parse_timeline
+    from fbcpr.inference.prompt import PromptError
+    from fbcpr.inference.timeline import parse_timeline
 
     with pytest.raises(PromptError, match=message):
         parse_timeline(text)
 
 
 def test_timeline_total_is_bounded_before_any_prompt_runs():
-    from fbcpr.prompt import PromptError
-    from fbcpr.timeline import Timeline
+    from fbcpr.inference.prompt import PromptError
+    from fbcpr.inference.timeline import Timeline
 
     with pytest.raises(PromptError, match=r"segment 2 \(walk\): the timeline would last 4000 s"):
         Timeline.build(prompt=None, items=[("walk", 2000.0), ("walk", 2000.0)])
@@ -269,9 +269,9 @@ def test_timeline_total_is_bounded_before_any_prompt_runs():
 def _checkpoint(tmp_path: Path) -> Path:
     import torch
 
-    from fbcpr.checkpoint import save_checkpoint
-    from fbcpr.config import config_from_dict
-    from fbcpr.fb_cpr.model import FBCPRModel
+    from fbcpr.core.checkpoint import save_checkpoint
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
 
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3}})
     torch.manual_seed(0)
@@ -286,7 +286,7 @@ def _checkpoint(tmp_path: Path) -> Path:
     (lambda m: m.update(format_version="1"), "format_version '1' is not supported"),
 ])
 def test_malformed_manifest_is_a_checkpoint_error(tmp_path, edit, message):
-    from fbcpr.checkpoint import CheckpointError, load_checkpoint
+    from fbcpr.core.checkpoint import CheckpointError, load_checkpoint
 
     path = _checkpoint(tmp_path)
     manifest = json.loads((path / "manifest.json").read_text())
@@ -297,7 +297,7 @@ def test_malformed_manifest_is_a_checkpoint_error(tmp_path, edit, message):
 
 
 def test_binary_manifest_is_a_checkpoint_error(tmp_path):
-    from fbcpr.checkpoint import CheckpointError, load_checkpoint
+    from fbcpr.core.checkpoint import CheckpointError, load_checkpoint
 
     path = _checkpoint(tmp_path)
     (path / "manifest.json").write_bytes(b"\xff\xfe\x00garbage")
@@ -307,9 +307,9 @@ def test_binary_manifest_is_a_checkpoint_error(tmp_path):
 
 @pytest.mark.parametrize("pointer", ["", ".", "latest", "../elsewhere"])
 def test_bad_latest_pointer_is_named(tmp_path, pointer):
-    from fbcpr.bfm import BFM
-    from fbcpr.checkpoint import CheckpointError
-    from fbcpr.trainer import checkpoint_env_steps
+    from fbcpr.inference.bfm import BFM
+    from fbcpr.core.checkpoint import CheckpointError
+    from fbcpr.train.trainer import checkpoint_env_steps
 
     path = _checkpoint(tmp_path)
     (path.parent / "latest").write_text(pointer)
@@ -320,8 +320,8 @@ def test_bad_latest_pointer_is_named(tmp_path, pointer):
 
 
 def test_overlong_checkpoint_path_is_a_checkpoint_error():
-    from fbcpr.bfm import BFM
-    from fbcpr.checkpoint import CheckpointError
+    from fbcpr.inference.bfm import BFM
+    from fbcpr.core.checkpoint import CheckpointError
 
     with pytest.raises(CheckpointError, match="not a usable checkpoint path"):
         BFM.load("a" * 300 + "/b")
@@ -374,7 +374,7 @@ def test_env_never_emits_non_finite_observations(index, value):
 
 
 def test_buffer_drops_and_counts_non_finite_rows():
-    from fbcpr.buffer import ReplayBuffer, transition_specs
+    from fbcpr.train.buffer import ReplayBuffer, transition_specs
 
     buf = ReplayBuffer(10, transition_specs(4, 2, 3, 5, 5))
     batch = {k: np.zeros((3, *s), dtype=np.float64) for k, s in buf.specs.items()}
@@ -388,8 +388,8 @@ def test_buffer_drops_and_counts_non_finite_rows():
 def test_states_only_reward_samples_that_cannot_be_rebuilt_are_named(tmp_path, monkeypatch):
     from conftest import humanoid_states
     from fbcpr import BFM, checkpoint
-    from fbcpr.config import config_from_dict
-    from fbcpr.fb_cpr.model import FBCPRModel
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
 
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69}})
     model, states = FBCPRModel(cfg.model), humanoid_states(8, seed=0)
@@ -415,9 +415,9 @@ def test_states_only_reward_samples_that_cannot_be_rebuilt_are_named(tmp_path, m
 def test_checkpoint_reward_buffer_is_filtered_on_save(tmp_path):
     import torch
 
-    from fbcpr.checkpoint import load_checkpoint, save_checkpoint
-    from fbcpr.config import config_from_dict
-    from fbcpr.fb_cpr.model import FBCPRModel
+    from fbcpr.core.checkpoint import load_checkpoint, save_checkpoint
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
 
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3}})
     reward = {"next_obs": np.zeros((4, 6)), "qpos": np.zeros((4, 4)), "qvel": np.zeros((4, 3))}
@@ -430,9 +430,9 @@ def test_checkpoint_reward_buffer_is_filtered_on_save(tmp_path):
 def _bfm():
     import torch
 
-    from fbcpr.bfm import BFM
-    from fbcpr.config import config_from_dict
-    from fbcpr.fb_cpr.model import FBCPRModel
+    from fbcpr.inference.bfm import BFM
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
 
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3}})
     torch.manual_seed(0)
@@ -452,7 +452,7 @@ def test_act_projects_z_onto_the_sphere():
     (3e38, 1.0, "obs: gives non-finite actions"), (1.0, 0.0, "z: must be nonzero"),
 ])
 def test_act_never_returns_non_finite_actions(obs_value, z_value, message):
-    from fbcpr.errors import InputError
+    from fbcpr.core.errors import InputError
 
     bfm = _bfm()
     with pytest.raises(InputError, match=message):
@@ -461,7 +461,7 @@ def test_act_never_returns_non_finite_actions(obs_value, z_value, message):
 
 @pytest.mark.parametrize("temperature", [-1.0, np.nan, np.inf])
 def test_reward_temperature_is_validated_and_named(temperature):
-    from fbcpr.prompt import Prompt, PromptError
+    from fbcpr.inference.prompt import Prompt, PromptError
 
     with pytest.raises(PromptError, match="temperature: must be a finite number >= 0"):
         Prompt(_bfm()).reward(lambda *a: np.zeros(1), temperature=temperature)
@@ -470,7 +470,7 @@ def test_reward_temperature_is_validated_and_named(temperature):
 # --- crash leftovers and resume ------------------------------------------------------------------------------------
 
 def test_pruning_never_leaves_a_half_deleted_checkpoint_under_its_name(tmp_path, monkeypatch):
-    import fbcpr.checkpoint as ckpt_mod
+    import fbcpr.core.checkpoint as ckpt_mod
 
     path = _checkpoint(tmp_path)
 
@@ -488,8 +488,8 @@ def test_pruning_never_leaves_a_half_deleted_checkpoint_under_its_name(tmp_path,
 
 
 def _toy_trainer(out: Path, **train):
-    from fbcpr.config import config_from_dict
-    from fbcpr.trainer import Trainer
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.train.trainer import Trainer
 
     cfg = config_from_dict({"model": {"preset": "tiny"}, "agent": {"batch_size": 32},
                             "env": {"name": "toy", "max_episode_steps": 30},
@@ -511,8 +511,8 @@ def test_stale_save_temporaries_are_removed_at_start_and_backups_kept(tmp_path):
 def test_checkpoint_records_the_next_checkpoint_not_the_current_one(tmp_path):
     import time
 
-    from fbcpr.trainer import checkpoint_env_steps
-    from fbcpr.checkpoint import read_trainer_meta
+    from fbcpr.train.trainer import checkpoint_env_steps
+    from fbcpr.core.checkpoint import read_trainer_meta
 
     tr = _toy_trainer(tmp_path / "run", checkpoint_every=40, log_every=10**6)
     tr.env_steps = 40
@@ -529,8 +529,8 @@ def test_checkpoint_records_the_next_checkpoint_not_the_current_one(tmp_path):
 def test_memory_is_estimated_up_front_naming_the_key(tmp_path, monkeypatch, train, model, message):
     import shutil
 
-    import fbcpr.trainer as trainer_mod
-    from fbcpr.config import ConfigError, config_from_dict
+    import fbcpr.train.trainer as trainer_mod
+    from fbcpr.core.config import ConfigError, config_from_dict
 
     monkeypatch.setattr(trainer_mod, "_memory_bytes", lambda device: 8 * 2**30)
     monkeypatch.setattr(trainer_mod.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(2**40, 2**40 - 2**30, 2**30))
@@ -544,9 +544,9 @@ def test_memory_is_estimated_up_front_naming_the_key(tmp_path, monkeypatch, trai
 def test_a_full_disk_fails_in_one_line_before_anything_is_written(tmp_path, monkeypatch):
     import shutil
 
-    import fbcpr.trainer as trainer_mod
-    from fbcpr.checkpoint import CheckpointError
-    from fbcpr.config import config_from_dict
+    import fbcpr.train.trainer as trainer_mod
+    from fbcpr.core.checkpoint import CheckpointError
+    from fbcpr.core.config import config_from_dict
 
     monkeypatch.setattr(trainer_mod.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(2**40, 2**40, 2**16))
     cfg = config_from_dict({"model": {"preset": "tiny"}, "env": {"name": "toy"}, "train": {"num_envs": 2}})
@@ -556,12 +556,12 @@ def test_a_full_disk_fails_in_one_line_before_anything_is_written(tmp_path, monk
 
 
 @pytest.mark.parametrize("call, error", [
-    (lambda: __import__("fbcpr.evaluation.metrics", fromlist=["x"]).emd(np.zeros((0, 3)), np.zeros((2, 3))),
-     "fbcpr.errors:InputError"),
+    (lambda: __import__("fbcpr.eval.metrics", fromlist=["x"]).emd(np.zeros((0, 3)), np.zeros((2, 3))),
+     "fbcpr.core.errors:InputError"),
     (lambda: __import__("humanoid_env.vector", fromlist=["x"]).VectorHumanoidEnv(0), "humanoid_env.errors:EnvError"),
     (lambda: __import__("humanoid_env.vector", fromlist=["x"]).VectorHumanoidEnv(2).reset(
         options={"qpos": np.zeros((3, 76)), "qvel": np.zeros((3, 75))}), "humanoid_env.errors:InvalidStateError"),
-    (lambda: __import__("fbcpr.config", fromlist=["x"]).config_from_dict({"nope": 1}), "fbcpr.errors:FBCPRError"),
+    (lambda: __import__("fbcpr.core.config", fromlist=["x"]).config_from_dict({"nope": 1}), "fbcpr.core.errors:FBCPRError"),
 ])
 def test_bad_input_ends_in_the_packages_own_error_types(call, error):
     import importlib
@@ -572,8 +572,8 @@ def test_bad_input_ends_in_the_packages_own_error_types(call, error):
 
 
 def test_resume_with_other_num_envs_names_the_key(tmp_path):
-    from fbcpr.config import ConfigError
-    from fbcpr.trainer import Trainer
+    from fbcpr.core.config import ConfigError
+    from fbcpr.train.trainer import Trainer
 
     tr = _toy_trainer(tmp_path / "run")
     tr.save()

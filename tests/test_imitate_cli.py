@@ -3,7 +3,7 @@ from typer.testing import CliRunner
 
 from fbcpr.cli.app import app
 from fbcpr.cli.imitate_cmd import imitation_config
-from fbcpr.methods import IMITATION_REWARDS
+from fbcpr.core.registry import IMITATION_REWARDS
 
 
 def run(*args):

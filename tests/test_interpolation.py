@@ -1,4 +1,4 @@
-"""Weight interpolation of two checkpoints (`fbcpr.interpolation`, `fbcpr export --interpolate`)."""
+"""Weight interpolation of two checkpoints (`fbcpr.inference.interpolation`, `fbcpr export --interpolate`)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,10 +10,10 @@ from typer.testing import CliRunner
 
 from conftest import humanoid_states, tiny_humanoid_checkpoint
 from fbcpr import BFM
-from fbcpr.checkpoint import CheckpointError
+from fbcpr.core.checkpoint import CheckpointError
 from fbcpr.cli.app import app
-from fbcpr.errors import InputError
-from fbcpr.interpolation import interpolate, with_reward_states
+from fbcpr.core.errors import InputError
+from fbcpr.inference.interpolation import interpolate, with_reward_states
 
 torch.set_num_threads(1)
 
@@ -77,7 +77,7 @@ def test_export_interpolate_writes_the_mixed_weights(pair, tmp_path):
     for key in expected:
         torch.testing.assert_close(got[key], expected[key], rtol=1e-6, atol=1e-6)
     assert len(BFM.load(out).reward_buffer["qpos"]) == 16
-    assert "configs/own-states.yaml" in res.output   # the mix's states are borrowed: how to make its own
+    assert "fbcpr/configs/own-states.yaml" in res.output   # the mix's states are borrowed: how to make its own
 
 
 def test_export_interpolate_with_a_bad_alpha_is_a_clear_error(pair, tmp_path):

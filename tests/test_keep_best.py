@@ -8,12 +8,12 @@ import pytest
 import torch
 
 from conftest import toy_run_config
-from fbcpr.bfm import resolve_checkpoint
-from fbcpr.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, read_trainer_meta
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.evaluation.agents import make_agent
-from fbcpr.evaluation.runner import evaluate
-from fbcpr.trainer import Trainer
+from fbcpr.inference.bfm import resolve_checkpoint
+from fbcpr.core.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, read_trainer_meta
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.eval.agents import make_agent
+from fbcpr.eval.runner import evaluate
+from fbcpr.train.trainer import Trainer
 from motions.library import MotionLibrary
 
 torch.set_num_threads(1)

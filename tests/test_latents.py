@@ -1,15 +1,15 @@
-"""fbcpr.latents: the shared z maths against the App. C.5.3 formulas written out as loops, and its two users agreeing."""
+"""fbcpr.nn.latents: the shared z maths against the App. C.5.3 formulas written out as loops, and its two users agreeing."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import torch
 
-from fbcpr.bfm import BFM
-from fbcpr.config import config_from_dict
-from fbcpr.envs import tracking_latents
-from fbcpr.latents import reward_weights, tracking_sums
-from fbcpr.fb_cpr.model import FBCPRModel
+from fbcpr.inference.bfm import BFM
+from fbcpr.core.config import config_from_dict
+from fbcpr.envs.bundle import tracking_latents
+from fbcpr.nn.latents import reward_weights, tracking_sums
+from fbcpr.methods.fb_cpr.model import FBCPRModel
 
 torch.set_num_threads(1)
 

@@ -3,10 +3,10 @@ import math
 
 import torch
 
-from fbcpr.config import config_from_dict
-from fbcpr.fb_cpr.agent import FBCPRAgent
-from fbcpr.lazy_metrics import LazyMetrics
-from fbcpr.td3.agent import TD3Agent
+from fbcpr.core.config import config_from_dict
+from fbcpr.methods.fb_cpr.agent import FBCPRAgent
+from fbcpr.nn.lazy_metrics import LazyMetrics
+from fbcpr.methods.td3.agent import TD3Agent
 
 torch.set_num_threads(1)
 

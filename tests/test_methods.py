@@ -6,12 +6,12 @@ import pytest
 import torch
 import yaml
 
-from fbcpr.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.fb_cpr.agent import FBCPRAgent
-from fbcpr.fb_cpr.model import FBCPRModel
-from fbcpr.methods import DEFAULT_ALGORITHM, METHODS, get_method
-from fbcpr.protocols import OnlineAgent
+from fbcpr.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.methods.fb_cpr.agent import FBCPRAgent
+from fbcpr.methods.fb_cpr.model import FBCPRModel
+from fbcpr.core.registry import DEFAULT_ALGORITHM, METHODS, get_method
+from fbcpr.core.protocols import OnlineAgent
 
 torch.set_num_threads(1)
 
@@ -81,8 +81,8 @@ def test_every_registered_method_resolves():
 
 
 def test_fb_cpr_discriminator_is_an_imitation_reward():
-    from fbcpr.fb_cpr.imitation import DiscriminatorReward
-    from fbcpr.protocols import ImitationReward
+    from fbcpr.methods.fb_cpr.imitation import DiscriminatorReward
+    from fbcpr.core.protocols import ImitationReward
 
     cfg = fb_cfg(agent={"batch_size": 32, "relabel_prob": 0.0})           # the agent scores the batch z as given
     agent = FBCPRAgent(cfg.model, cfg.agent, seed=0)

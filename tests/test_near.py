@@ -6,14 +6,14 @@ import pytest
 import torch
 from safetensors.torch import load_file, save_file
 
-from fbcpr.config import ConfigError, config_from_dict, load_config
-from fbcpr.near.annealing import Annealer
-from fbcpr.near.config import NEARConfig
-from fbcpr.near.energy import EnergyNet, dsm_loss, noise_levels
-from fbcpr.near.reward import NEARError, NEARReward
-from fbcpr.protocols import ImitationReward
-from fbcpr.toy import pointmass as pm
-from fbcpr.trainer import Trainer
+from fbcpr.core.config import ConfigError, config_from_dict, load_config
+from fbcpr.rewards.near.annealing import Annealer
+from fbcpr.rewards.near.config import NEARConfig
+from fbcpr.rewards.near.energy import EnergyNet, dsm_loss, noise_levels
+from fbcpr.rewards.near.reward import NEARError, NEARReward
+from fbcpr.core.protocols import ImitationReward
+from fbcpr.envs import toy as pm
+from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

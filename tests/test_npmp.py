@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 import torch
 
-from fbcpr.bfm import BFM
-from fbcpr.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.evaluation.agents import load_tracker, make_agent
-from fbcpr.fb_cpr.model import FBCPRModel
-from fbcpr.npmp.agent import NPMPAgent
-from fbcpr.npmp.config import npmp_config
-from fbcpr.npmp.data import DataError, ExpertData, collect, expert_jacobian
-from fbcpr.npmp.distill import Distiller, distill
-from fbcpr.npmp.model import NPMPModel, future_indices, kl_to_prior
-from fbcpr.prompt import PromptError
+from fbcpr.inference.bfm import BFM
+from fbcpr.core.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.eval.agents import load_tracker, make_agent
+from fbcpr.methods.fb_cpr.model import FBCPRModel
+from fbcpr.apps.npmp.agent import NPMPAgent
+from fbcpr.apps.npmp.config import npmp_config
+from fbcpr.apps.npmp.data import DataError, ExpertData, collect, expert_jacobian
+from fbcpr.apps.npmp.distill import Distiller, distill
+from fbcpr.apps.npmp.model import NPMPModel, future_indices, kl_to_prior
+from fbcpr.inference.prompt import PromptError
 from humanoid_env.model import load_model
 from motions.clip import from_qpos
 from motions.library import MotionLibrary
@@ -185,7 +185,7 @@ def test_distill_checkpoints_resume_and_track(bc_data, tmp_path):
     obs = bc_data.obs[:6].numpy()
     zs = agent.track_z(obs)
     assert zs.shape == (5, 4) and agent.act(obs[0], zs[0]).shape == (69,) and agent.act(obs, zs[0]).shape == (6, 69)
-    from fbcpr.errors import InputError
+    from fbcpr.core.errors import InputError
 
     with pytest.raises(InputError, match="z: expected"):
         agent.act(obs, zs[:2])
@@ -200,7 +200,7 @@ def test_distill_checkpoints_resume_and_track(bc_data, tmp_path):
 def test_cli_distill_resume_track_and_eval(bfm, library, tmp_path):
     from typer.testing import CliRunner
 
-    from fbcpr.checkpoint import save_checkpoint
+    from fbcpr.core.checkpoint import save_checkpoint
     from fbcpr.cli.app import app
     from motions.clip import save_clip
 
@@ -231,7 +231,7 @@ def test_cli_distill_resume_track_and_eval(bfm, library, tmp_path):
 
 
 def test_relative_to_expert_by_hand():
-    from fbcpr.npmp.evaluate import relative_to_expert
+    from fbcpr.apps.npmp.evaluate import relative_to_expert
 
     npmp = {"a": {"emd": 2.0, "success": 0.0}, "b": {"emd": 1.0, "success": 1.0}}
     expert = {"a": {"emd": 1.0, "success": 1.0}, "b": {"emd": 1.5, "success": 1.0}}
@@ -243,7 +243,7 @@ def test_relative_to_expert_by_hand():
 
 
 def test_latent_optimisation_fits_the_expert_actions(bc_data):
-    from fbcpr.npmp.latent_opt import optimise_latents
+    from fbcpr.apps.npmp.latent_opt import optimise_latents
 
     model = tiny()
     model.obs_normalizer.update(bc_data.obs)
@@ -272,7 +272,7 @@ def test_a_stop_signal_ends_distillation_with_a_checkpoint(bc_data, tmp_path, de
 
 
 def test_checkpoint_round_trip_and_corruption(tmp_path):
-    from fbcpr.npmp.checkpoint import load_npmp, save_npmp
+    from fbcpr.apps.npmp.checkpoint import load_npmp, save_npmp
 
     model = tiny(alpha=0.0)
     model.obs_normalizer.update(torch.randn(10, 358))
@@ -289,7 +289,7 @@ def test_checkpoint_round_trip_and_corruption(tmp_path):
 def test_collect_on_another_env_through_make_env():
     from types import SimpleNamespace
 
-    from fbcpr.toy import pointmass as pm
+    from fbcpr.envs import toy as pm
 
     torch.manual_seed(0)
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 2, "action_dim": 2}, "env": {"name": "toy"},

@@ -1,4 +1,4 @@
-"""NPMP reuse (fbcpr.npmp.reuse): the latent action space, the AR(1) prior mapping, checkpoint and config errors,
+"""NPMP reuse (fbcpr.apps.npmp.reuse): the latent action space, the AR(1) prior mapping, checkpoint and config errors,
 and TD3 training end to end in an NPMP's latent space on the toy."""
 import json
 import math
@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from fbcpr.config import ConfigError, EnvConfig, config_from_dict, load_config
-from fbcpr.envs import make_env
-from fbcpr.npmp.checkpoint import save_npmp
-from fbcpr.npmp.config import npmp_config
-from fbcpr.npmp.model import NPMPModel
-from fbcpr.npmp.reuse import LatentActionEnv, load_decoder, task_return
-from fbcpr.toy import pointmass as pm
-from fbcpr.trainer import Trainer
+from fbcpr.core.config import ConfigError, EnvConfig, config_from_dict, load_config
+from fbcpr.envs.bundle import make_env
+from fbcpr.apps.npmp.checkpoint import save_npmp
+from fbcpr.apps.npmp.config import npmp_config
+from fbcpr.apps.npmp.model import NPMPModel
+from fbcpr.apps.npmp.reuse import LatentActionEnv, load_decoder, task_return
+from fbcpr.envs import toy as pm
+from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
 ALPHA = 0.9

@@ -1,4 +1,4 @@
-"""A model's reward states from its own rollouts (configs/own-states.yaml): a warm start whose warm-up outlasts the
+"""A model's reward states from its own rollouts (fbcpr/configs/own-states.yaml): a warm start whose warm-up outlasts the
 run rolls the loaded policy out, makes no update, and saves a reward sample of those rollouts' states."""
 from pathlib import Path
 
@@ -6,9 +6,9 @@ import numpy as np
 import torch
 
 from conftest import toy_run_config
-from fbcpr.checkpoint import latest_checkpoint, load_checkpoint
-from fbcpr.config import load_config
-from fbcpr.trainer import Trainer
+from fbcpr.core.checkpoint import latest_checkpoint, load_checkpoint
+from fbcpr.core.config import load_config
+from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

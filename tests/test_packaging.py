@@ -1,23 +1,21 @@
-"""A built wheel must contain every sub-package: pyproject lists them by hand (cli/ maps onto fbcpr.cli, configs/
-onto fbcpr.configs)."""
+"""A built wheel must contain every sub-package: setuptools finds packages by their `__init__.py`, so a folder of
+modules without one would be left out of the wheel."""
 import tomllib
 from importlib import resources
 from pathlib import Path
 
+from setuptools import find_packages
+
 ROOT = Path(__file__).resolve().parents[1]
-MAPPED = {"cli": "fbcpr.cli", "configs": "fbcpr.configs"}
 
 
-def test_every_package_directory_is_declared():
-    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
-    found = set()
-    for top in ("fbcpr", "humanoid_env", "motions", *MAPPED):
-        for init in (ROOT / top).rglob("__init__.py"):
-            parts = init.parent.relative_to(ROOT).parts
-            found.add(".".join((MAPPED.get(parts[0], parts[0]), *parts[1:])))
-    declared = set(cfg["packages"])
-    assert found == declared, f"missing from pyproject: {found - declared}; stale: {declared - found}"
-    assert cfg["package-dir"] == {v: k for k, v in MAPPED.items()}
+def test_every_package_directory_is_found():
+    include = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]["include"]
+    found = set(find_packages(str(ROOT), include=include))
+    with_modules = {".".join(p.parent.relative_to(ROOT).parts) for top in ("fbcpr", "humanoid_env", "motions")
+                    for p in (ROOT / top).rglob("*.py")}
+    assert with_modules <= found, f"folders of modules setuptools would leave out: {with_modules - found}"
+    assert not any(name.startswith(("lab", "tests", "benchmarks")) for name in found)
 
 
 def test_shipped_configs_are_importable_resources():

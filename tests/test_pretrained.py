@@ -8,7 +8,7 @@ from safetensors import safe_open
 from typer.testing import CliRunner
 
 from fbcpr import BFM
-from fbcpr.bfm import PRETRAINED_DIR
+from fbcpr.inference.bfm import PRETRAINED_DIR
 from fbcpr.cli.app import app
 
 torch.set_num_threads(1)

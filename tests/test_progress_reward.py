@@ -6,10 +6,10 @@ import pytest
 import torch
 
 from conftest import humanoid_states
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.methods import imitation_reward
-from fbcpr.progress_reward import MAX_FRAMES, ProgressConfig, ProgressReward
-from fbcpr.protocols import ImitationReward
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.registry import imitation_reward
+from fbcpr.rewards.progress import MAX_FRAMES, ProgressConfig, ProgressReward
+from fbcpr.core.protocols import ImitationReward
 from motions import synthetic
 from motions.library import MotionLibrary
 

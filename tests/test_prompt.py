@@ -6,11 +6,11 @@ import pytest
 import torch
 
 from conftest import humanoid_states
-from fbcpr.bfm import BFM
-from fbcpr.config import config_from_dict
-from fbcpr.fb_cpr.model import FBCPRModel
-from fbcpr.prompt import PromptError, goal_reward
-from fbcpr.timeline import Timeline, parse_timeline
+from fbcpr.inference.bfm import BFM
+from fbcpr.core.config import config_from_dict
+from fbcpr.methods.fb_cpr.model import FBCPRModel
+from fbcpr.inference.prompt import PromptError, goal_reward
+from fbcpr.inference.timeline import Timeline, parse_timeline
 from humanoid_env.model import NV, load_model
 from humanoid_env.observation import observe
 from humanoid_env.tasks import get_reward
@@ -53,7 +53,7 @@ def test_goal_z_is_normalized_b_of_goal(bfm):
 
 
 def test_goal_from_states_is_the_weighted_regression_of_the_goal_proximity(bfm):
-    from fbcpr.evaluation.metrics import d_smpl
+    from fbcpr.eval.metrics import d_smpl
 
     buf, goal = bfm.reward_buffer, goal_obs("t_pose")
     r = np.exp(-d_smpl(buf["next_obs"], goal) / 2.0)
@@ -225,9 +225,9 @@ def test_prompts_steer_a_trained_toy_model(tmp_path):
     goal, reward and tracking prompts beat random latents (the numbers at 40k steps are in docs/usage.md)."""
     from pathlib import Path
 
-    from fbcpr.config import load_config
-    from fbcpr.toy import pointmass as pm
-    from fbcpr.trainer import Trainer
+    from fbcpr.core.config import load_config
+    from fbcpr.envs import toy as pm
+    from fbcpr.train.trainer import Trainer
 
     cfg = load_config(Path(__file__).parents[1] / "configs" / "toy.yaml")
     cfg.train.total_env_steps = 15_000
@@ -274,7 +274,7 @@ def test_prompts_steer_a_trained_toy_model(tmp_path):
 
 
 def test_unknown_names_suggest_the_closest_and_do_not_repeat_themselves():
-    from fbcpr.prompt import PromptError, reward_fn, goal_observation
+    from fbcpr.inference.prompt import PromptError, reward_fn, goal_observation
 
     with pytest.raises(PromptError) as err:
         reward_fn("jupm-2")
@@ -284,7 +284,7 @@ def test_unknown_names_suggest_the_closest_and_do_not_repeat_themselves():
 
 
 def test_a_folder_given_as_a_clip_lists_its_clips(tmp_path):
-    from fbcpr.prompt import PromptError, load_motion
+    from fbcpr.inference.prompt import PromptError, load_motion
     from motions.clip import save_clip
     from motions.synthetic import stand
 

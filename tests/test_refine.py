@@ -7,10 +7,10 @@ import torch
 from rich.progress import Progress
 
 from conftest import tiny_humanoid_checkpoint
-from fbcpr.bfm import BFM
-from fbcpr.evaluation.runner import reward_suite
-from fbcpr.prompt import PromptError
-from fbcpr.refine import Search, cross_entropy, goal_objective, project, refine, reward_objective, rollout_score
+from fbcpr.inference.bfm import BFM
+from fbcpr.eval.runner import reward_suite
+from fbcpr.inference.prompt import PromptError
+from fbcpr.inference.refine import Search, cross_entropy, goal_objective, project, refine, reward_objective, rollout_score
 from humanoid_env.inits import DefaultInit
 from humanoid_env.tasks import goal_obs
 

@@ -1,4 +1,4 @@
-"""Reward prompts stored at export (`fbcpr.reward_prompts`, `fbcpr export --store-prompts`)."""
+"""Reward prompts stored at export (`fbcpr.inference.reward_prompts`, `fbcpr export --store-prompts`)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,11 +10,11 @@ from typer.testing import CliRunner
 
 from conftest import tiny_humanoid_checkpoint
 from fbcpr import BFM
-from fbcpr.checkpoint import PROMPTS_FILE, CheckpointError, load_checkpoint, save_checkpoint
+from fbcpr.core.checkpoint import PROMPTS_FILE, CheckpointError, load_checkpoint, save_checkpoint
 from fbcpr.cli.app import app
-from fbcpr.interpolation import interpolate, with_reward_states
-from fbcpr.prompt import PromptError
-from fbcpr.reward_prompts import RewardPrompts, infer_reward_prompts, weights_digest
+from fbcpr.inference.interpolation import interpolate, with_reward_states
+from fbcpr.inference.prompt import PromptError
+from fbcpr.inference.reward_prompts import RewardPrompts, infer_reward_prompts, weights_digest
 from humanoid_env.tasks.rewards import TASKS
 
 torch.set_num_threads(1)
@@ -119,7 +119,7 @@ def test_prompts_of_other_weights_are_refused_on_load(exported, tmp_path):
     ("states", "states"), ("many", "at most 3"),
 ])
 def test_malformed_stored_prompts_are_named(exported, tmp_path, monkeypatch, case, match):
-    import fbcpr.reward_prompts as rp
+    import fbcpr.inference.reward_prompts as rp
 
     _, _, out = exported
     tensors, meta = BFM.load(out).reward_prompts.to_tensors()
@@ -165,8 +165,8 @@ def test_the_digest_follows_every_tensor(exported):
 
 
 def test_store_prompts_is_refused_for_a_model_without_the_humanoid_tasks(tmp_path):
-    from fbcpr.config import config_from_dict
-    from fbcpr.fb_cpr.model import FBCPRModel
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
 
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 4, "action_dim": 2},
                             "env": {"name": "toy"}})
@@ -185,7 +185,7 @@ def test_reward_prompts_to_tensors_records_what_loading_checks():
 
 
 def test_stored_prompts_travel_to_the_hub_folder_and_the_card_names_them(exported, tmp_path):
-    from fbcpr.bfm import HUB_FILES
+    from fbcpr.inference.bfm import HUB_FILES
 
     _, _, out = exported
     folder = BFM.load(out).save_for_hub(tmp_path / "hub", repo_id="me/bfm")
@@ -196,8 +196,8 @@ def test_stored_prompts_travel_to_the_hub_folder_and_the_card_names_them(exporte
 
 
 def test_more_states_than_the_bound_are_refused_before_any_work(exported, monkeypatch):
-    import fbcpr.reward_prompts as rp
-    from fbcpr.errors import InputError
+    import fbcpr.inference.reward_prompts as rp
+    from fbcpr.core.errors import InputError
 
     model, _, _ = exported
     monkeypatch.setattr(rp, "MAX_STATES", 31)

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from fbcpr.bfm import BFM
-from fbcpr.checkpoint import CheckpointError, load_checkpoint
-from fbcpr.config import ConfigError, config_from_dict, load_config
-from fbcpr.td3.agent import TD3Agent
-from fbcpr.td3.model import TD3Model
-from fbcpr.toy.evaluate import task_return
-from fbcpr.trainer import Trainer
+from fbcpr.inference.bfm import BFM
+from fbcpr.core.checkpoint import CheckpointError, load_checkpoint
+from fbcpr.core.config import ConfigError, config_from_dict, load_config
+from fbcpr.methods.td3.agent import TD3Agent
+from fbcpr.methods.td3.model import TD3Model
+from fbcpr.eval.toy import task_return
+from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

@@ -1,5 +1,5 @@
 """The training path needs only numpy, torch, mujoco, gymnasium, safetensors, yaml, typer and rich (the GPU lease
-image of benchmarks/gpu_lease): dm_control, POT, mink, tensorboard and matplotlib are never required by it."""
+image of lab/gpu): dm_control, POT, mink, tensorboard and matplotlib are never required by it."""
 import json
 import subprocess
 import sys
@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from fbcpr.evaluation import metrics
+from fbcpr.eval import metrics
 
 # Runs in a fresh interpreter with the packages the GPU image lacks made unimportable, recording every attempt;
 # trains twice through a priority refresh: without scipy (no EMD solver at all), then with it (assignment EMD).
@@ -25,8 +25,8 @@ class Block(importlib.abc.MetaPathFinder):
 
 sys.meta_path.insert(0, Block())
 import fbcpr.cli.app  # the `fbcpr train` entry point and every command module it registers
-from fbcpr.config import config_from_dict
-from fbcpr.trainer import Trainer
+from fbcpr.core.config import config_from_dict
+from fbcpr.train.trainer import Trainer
 
 cfg = config_from_dict({
     "model": {"preset": "tiny"}, "agent": {"batch_size": 8},
@@ -44,9 +44,9 @@ for run in ("no_scipy", "scipy"):
     blocked.discard("scipy")
 # The shipped model, which a lease continues (--init-from pretrained), and a shipped config that names evaluation
 # tasks, whose check on loading must not need dm_control either.
-from fbcpr.bfm import resolve_checkpoint
-from fbcpr.checkpoint import load_checkpoint
-from fbcpr.config import find_config, load_config
+from fbcpr.inference.bfm import resolve_checkpoint
+from fbcpr.core.checkpoint import load_checkpoint
+from fbcpr.core.config import find_config, load_config
 out["pretrained_z_dim"] = load_checkpoint(resolve_checkpoint("pretrained"), "cpu").config.model.z_dim
 out["config_eval_tasks"] = load_config(find_config("cpu")).train.eval_tasks
 out["attempts"] = sorted(set(attempts))

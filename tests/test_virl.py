@@ -9,15 +9,15 @@ import pytest
 import torch
 from safetensors.torch import load_file, save_file
 
-from fbcpr.buffer import ReplayBuffer, transition_specs
-from fbcpr.config import ConfigError, config_from_dict
-from fbcpr.protocols import ImitationReward
-from fbcpr.toy import pointmass as pm
-from fbcpr.virl.config import VIRLConfig
-from fbcpr.virl.frames import load_frames, rasterize_points, save_frames
-from fbcpr.virl.losses import make_pairs, virl_loss
-from fbcpr.virl.model import Comparator, distance
-from fbcpr.virl.reward import VIRLReward, windows_of
+from fbcpr.train.buffer import ReplayBuffer, transition_specs
+from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.protocols import ImitationReward
+from fbcpr.envs import toy as pm
+from fbcpr.rewards.virl.config import VIRLConfig
+from fbcpr.rewards.virl.frames import load_frames, rasterize_points, save_frames
+from fbcpr.rewards.virl.losses import make_pairs, virl_loss
+from fbcpr.rewards.virl.model import Comparator, distance
+from fbcpr.rewards.virl.reward import VIRLReward, windows_of
 
 torch.set_num_threads(1)
 SMALL = dict(embed_dim=16, hidden_dim=32, lr=3e-3)
@@ -174,7 +174,7 @@ def test_buffer_history_follows_each_env_and_stops_at_resets():
 
 
 def test_rendering_humanoid_frames_without_gl_fails_with_the_clear_error():
-    code = ("import numpy as np\nfrom fbcpr.virl.frames import render_clip\nfrom humanoid_env.model import default_qpos\n"
+    code = ("import numpy as np\nfrom fbcpr.rewards.virl.frames import render_clip\nfrom humanoid_env.model import default_qpos\n"
             "try:\n    print('RENDERED', render_clip(default_qpos()[None], 64).shape)\n"
             "except RuntimeError as e:\n    print('ERROR', e)\n")
     env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}

@@ -293,7 +293,7 @@ class Headstand(_Reward):
 @dataclass(frozen=True)
 class HeadHeight(_Reward):
     """Head at or above `height` m, linearly from 0 with the head on the floor: not a task of the paper but a
-    reward for getting up, in which no posture on the floor pays more than a higher one (docs/results.md
+    reward for getting up, in which no posture on the floor pays more than a higher one (lab/log.md
     section 24: a reward that pays for floor postures holds a single-task agent on the floor)."""
 
     height: float

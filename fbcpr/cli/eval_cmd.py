@@ -1,0 +1,76 @@
+"""`fbcpr eval`: run the zero-shot benchmark (reward, goal, tracking suites) on a checkpoint or a floor baseline."""
+from __future__ import annotations
+
+from enum import Enum
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from fbcpr.cli.common import cli_errors, console, err_console, given
+
+
+class Suite(str, Enum):
+    reward = "reward"
+    goal = "goal"
+    tracking = "tracking"
+    all = "all"
+
+
+def _load_motions(folder: Optional[Path]):
+    if folder is not None:
+        from motions.library import MotionLibrary
+
+        return MotionLibrary.load(folder)
+    from motions.synthetic import default_library
+
+    return default_library()
+
+
+@cli_errors
+def eval_command(
+    ctx: typer.Context,
+    ckpt: str = typer.Argument(..., help="Checkpoint dir or hub id (FB-CPR is prompted zero-shot; a single-task "
+                                         "agent runs its own task, with imitation metrics when it imitates), or "
+                                         "the floor baselines 'random' or 'zero'."),
+    suite: Suite = typer.Option(Suite.all, "--suite", help="Which suite to run."),
+    tasks: Optional[list[str]] = typer.Option(None, "--tasks", help="Restrict to these names (reward tasks such as "
+                                              "move-ego-0-2, goal poses such as t_pose, clip names); repeatable, "
+                                              "or comma-separated."),
+    episodes: int = typer.Option(10, "--episodes", min=1, help="Episodes per reward task and goal pose."),
+    steps: int = typer.Option(300, "--steps", min=1, help="Steps per reward/goal episode (paper: 300)."),
+    motions: Optional[Path] = typer.Option(None, "--motions", help="Folder of clip .npz files: tracked clips and "
+                                           "MoCap test states (default: the built-in synthetic clips)."),
+    fall_prob: float = typer.Option(0.5, "--fall-prob", min=0.0, max=1.0, help="Share of Fall states in the test "
+                                    "initial distribution."),
+    out: Path = typer.Option(Path("eval_out"), "--out", help="Directory for results.json (rewritten after every "
+                             "task, so Ctrl-C keeps what is done) and plots."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the initial states (and of the random baseline)."),
+) -> None:
+    """Evaluate an agent zero-shot on reward tasks, goal poses and motion tracking (paper App. C.3)."""
+    from fbcpr.eval.agents import make_agent
+    from fbcpr.eval.report import print_report
+    from fbcpr.eval.runner import evaluate
+
+    if suite == Suite.tracking:
+        extra = [f"--{n.replace('_', '-')}" for n in ("episodes", "steps", "fall_prob") if given(ctx, n)]
+        if extra:
+            raise typer.BadParameter(f"{', '.join(extra)}: reward and goal episodes only; the tracking suite plays "
+                                     "each clip once, from its first frame")
+    names = [n.strip() for t in tasks or [] for n in t.split(",") if n.strip()] or None
+    library = _load_motions(motions)
+    agent = make_agent(ckpt, seed=seed)
+    try:
+        results = evaluate(agent, suite.value, tasks=names, episodes=episodes, motions=library, out=out, steps=steps,
+                           fall_prob=fall_prob, seed=seed, agent_name=ckpt)
+    except KeyboardInterrupt:
+        done = out / "results.json"
+        err_console.print(f"[bold red]interrupted[/]: " + (f"the tasks done so far are in {done}" if done.is_file()
+                                                            else "no task had finished"), highlight=False)
+        raise typer.Exit(130) from None
+    print_report(results, console)
+    console.print(f"results and plots written to [bold]{out}[/]")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("eval")(eval_command)

@@ -1,0 +1,74 @@
+"""`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample of states),
+optionally with its weights interpolated towards the model it was trained on from (`--interpolate BASE`), and with
+another model's reward states (`--reward-states-from MODEL`), and with the named tasks' reward prompts inferred from
+all of those states (`--store-prompts`)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from fbcpr.cli.common import cli_errors, console
+
+
+@cli_errors
+def export_command(
+    checkpoint: str = typer.Argument(..., help="Checkpoint dir, run dir, 'pretrained' or a Hugging Face repo id."),
+    out: Path = typer.Argument(..., help="Folder to write the inference checkpoint into (replaced atomically)."),
+    reward_samples: int = typer.Option(20_000, "--reward-samples", min=1,
+                                       help="States kept for reward prompts (a seeded subsample of the buffer)."),
+    half: bool = typer.Option(True, "--half/--full", help="Store the reward states as float16 (half the size)."),
+    states_only: bool = typer.Option(True, "--states-only/--with-obs",
+                                     help="Store the reward states without their observations, which loading "
+                                          "rebuilds from qpos/qvel (a third of the size on the humanoid)."),
+    interpolate_from: str = typer.Option(None, "--interpolate", metavar="BASE",
+                                         help="Export (1 - alpha) * BASE + alpha * CHECKPOINT, weight by weight: "
+                                              "BASE is the model CHECKPOINT's run continued from (WiSE-FT)."),
+    alpha: float = typer.Option(None, "--alpha",
+                                help="Weight of CHECKPOINT with --interpolate (0: BASE, 1: it; default 0.5)."),
+    reward_states_from: list[str] = typer.Option(None, "--reward-states-from", metavar="MODEL",
+                                                 help="Take the reward-prompt states from MODEL (e.g. 'pretrained') "
+                                                      "instead of CHECKPOINT's own replay states; repeat it to pool "
+                                                      "several models' states (then --reward-samples subsamples)."),
+    store_prompts: bool = typer.Option(False, "--store-prompts/--no-store-prompts",
+                                       help="Infer the reward prompts of the named tasks (fbcpr tasks) from every "
+                                            "reward state before --reward-samples subsamples them, and store them "
+                                            "for the prompts to use: z's that depend less on which states were "
+                                            "kept (docs/usage.md)."),
+) -> None:
+    """Write what inference needs and nothing else: no trainer state, no replay buffer."""
+    from fbcpr.inference.bfm import BFM
+    from fbcpr.core.errors import InputError
+    from fbcpr.inference.interpolation import interpolate, with_reward_states
+    from fbcpr.inference.reward_prompts import infer_reward_prompts
+    from humanoid_env.tasks.rewards import TASKS
+
+    if alpha is not None and interpolate_from is None:
+        raise InputError("--alpha: only means something with --interpolate BASE")
+    bfm = BFM.load(checkpoint)
+    if interpolate_from is not None:
+        bfm = interpolate(BFM.load(interpolate_from), bfm, 0.5 if alpha is None else alpha)
+    if reward_states_from:
+        bfm = with_reward_states(bfm, [BFM.load(src) for src in reward_states_from])
+    if store_prompts:
+        if bfm.env_name != "humanoid":
+            raise InputError(f"--store-prompts: the named tasks are the humanoid's, and {checkpoint} was trained on "
+                             f"{bfm.env_name!r}")
+        with console.status(f"inferring {len(TASKS)} reward prompts from every reward state"):
+            bfm.reward_prompts = infer_reward_prompts(bfm, TASKS)
+        left_out = [t for t in TASKS if t not in bfm.reward_prompts.z]
+        console.print(f"inferred {len(bfm.reward_prompts.z)} reward prompts from {bfm.reward_prompts.states:,} states"
+                      + (f"; left out (they pay nothing on these states): {', '.join(left_out)}" if left_out else ""))
+    path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
+    sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
+    for name, size in sizes.items():
+        console.print(f"  {name:28s} {size / 2**20:8.2f} MiB")
+    console.print(f"wrote [bold]{path}[/] ({sum(sizes.values()) / 2**20:.2f} MiB in all)")
+    if interpolate_from is not None and not reward_states_from:
+        console.print(f"its reward states are {checkpoint}'s; to try the mix's own (better for the shipped mix, worse "
+                      f"for S3 in lab/log.md section 42: measure both): fbcpr train fbcpr/configs/own-states.yaml "
+                      f"--init-from {path} --out RUN, then fbcpr export {path} OUT --reward-states-from RUN")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("export")(export_command)

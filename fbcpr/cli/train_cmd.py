@@ -1,0 +1,78 @@
+"""`fbcpr train CONFIG.yaml`: online FB-CPR pre-training (fresh or resumed) into a run directory."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from fbcpr.cli.common import cli_errors, console, err_console
+
+
+@cli_errors
+def train_command(
+    config: str = typer.Argument(..., help="YAML run config, or the name of a shipped one (quickstart, small, cpu, "
+                                 "paper-S, paper-M, toy). Relative paths inside it are read from its folder."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Run directory (default: runs/<config name>)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its latest checkpoint."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Total env steps of the run, counted from 0 "
+                                        "(overrides train.total_env_steps); with --resume too."),
+    more_steps: Optional[int] = typer.Option(None, "--more-steps", min=1, help="With --resume: train this many env "
+                                             "steps beyond the latest checkpoint."),
+    device: Optional[str] = typer.Option(None, "--device", help="Override train.device (cpu, cuda, auto)."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the live progress bar (off: a plain "
+                                  "log line every train.log_every env steps)."),
+    init_from: Optional[str] = typer.Option(None, "--init-from", help="Warm-start a new run from the weights of a "
+                                            "checkpoint, inference-only ones included ('pretrained': the shipped model)."),
+) -> None:
+    """Train FB-CPR online; Ctrl-C (or SIGTERM, SIGHUP) stops at the next safe point with a final checkpoint.
+    Data-parallel over processes and machines: `torchrun --nproc_per_node=N -m fbcpr train ...`."""
+    from fbcpr.core.config import ConfigError, find_config, load_config
+    from fbcpr.nn.distributed import launched_rank
+    from fbcpr.train.trainer import checkpoint_env_steps, resolve_device, train
+
+    config_path = find_config(config)
+    cfg = load_config(config_path)
+    if steps is not None and more_steps is not None:
+        raise typer.BadParameter("give --steps (the run's total) or --more-steps (beyond the checkpoint), not both")
+    if more_steps is not None and not resume:
+        raise typer.BadParameter("--more-steps continues a run: it needs --resume (a new run takes --steps)")
+    if steps is not None:
+        cfg.train.total_env_steps = steps
+    if device is not None:
+        if not (device in ("cpu", "auto") or device.startswith("cuda")):
+            raise ConfigError(f"--device: must be cpu, cuda[:i] or auto, got {device!r}")
+        cfg.train.device = device
+    resolve_device(cfg.train.device)  # fail before anything is written
+    run_dir = out if out is not None else Path("runs") / config_path.stem
+    if resume and init_from is not None:
+        raise ValueError("--init-from starts a new run; --resume continues one: give only one of them")
+    if resume and not (run_dir / "checkpoints" / "latest").exists():
+        raise FileNotFoundError(f"--resume: no checkpoint to resume in {run_dir}")
+    if not resume and (run_dir / "checkpoints" / "latest").exists():
+        raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
+    if resume:
+        done = checkpoint_env_steps(run_dir)
+        if more_steps is not None:
+            cfg.train.total_env_steps = done + more_steps
+        if done >= cfg.train.total_env_steps:  # nothing to do: leave the run exactly as it is
+            if launched_rank() == 0:
+                console.print(f"nothing to do: {run_dir} is at {done:,} env steps, and the run's total is "
+                              f"{cfg.train.total_env_steps:,} (--steps is the total; --more-steps N trains N more)")
+            return
+    try:
+        summary = train(cfg, run_dir, resume=resume, progress=progress, init_from=init_from)
+    except KeyboardInterrupt:  # a second Ctrl-C: the checkpoints on disk are whole (written atomically)
+        latest = run_dir / "checkpoints" / "latest"
+        kept = f"the last checkpoint, {run_dir / 'checkpoints' / latest.read_text().strip()}, is intact" \
+            if latest.is_file() else "no checkpoint had been written yet"
+        err_console.print(f"[bold red]aborted[/]: {kept}", highlight=False)
+        raise typer.Exit(130) from None
+    state = "interrupted" if summary["interrupted"] else "finished"
+    if launched_rank() == 0:
+        console.print(f"{state} at {summary['env_steps']:,} env steps, {summary['updates']:,} updates; "
+                      f"checkpoint: {summary['checkpoint']}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("train")(train_command)

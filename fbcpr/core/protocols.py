@@ -1,0 +1,82 @@
+"""The two seams between a method and the rest of the package.
+
+`OnlineAgent` is what the one online trainer (`fbcpr.train.trainer.Trainer`) drives, whatever the method:
+
+    rollouts   z = agent.rollout_z(n, online_next_obs, expert_windows)  # (n, z_dim); z_dim = 0: no latent
+               a = agent.act(obs, z)                                    # exploration actions in [-1, 1]
+    learning   metrics = agent.update(buffer.sample(fields=agent.fields), expert_windows)
+    checkpoint agent.model (-> model.safetensors), agent.state() / load_state() (-> trainer_state.safetensors)
+    optional   agent.observe(obs, next_obs, z) # each batch of online transitions as collected, with the rollout
+                                               # latents (NEAR's annealing)
+
+`ImitationReward` is a reward learned from demonstrations that plugs into any RL agent: `fit` on expert
+transitions (and, for adversarial rewards, the agent's own), then a batched `reward(obs, next_obs[, z])`. It is
+built by `fbcpr.core.registry.imitation_reward` with the env's demonstration library, which a reward trained offline
+before RL (NEAR) pretrains on in its first `fit`.
+A sequence reward (VIRL) also has an int attribute `history` > 0: the agent then samples each transition with the
+`history` states of its episode before s (`ReplayBuffer.sample(history=)`, batch["history"]) and passes them as
+`reward(obs, next_obs, history=...)`.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Callable, Protocol, runtime_checkable
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+
+@runtime_checkable
+class OnlineAgent(Protocol):
+    """A learner the online trainer can drive (FB-CPR's `FBCPRAgent`, `TD3Agent`, ...)."""
+
+    model: nn.Module              # what inference needs; saved as model.safetensors, rebuilt by `fbcpr.core.registry`
+    generator: torch.Generator    # the agent's own random stream (saved with its state)
+    fields: tuple[str, ...]       # replay-buffer fields `update` reads
+    z_dim: int                    # width of the latent stored with each transition (0: not latent-conditioned)
+
+    def rollout_z(self, n: int, online_next_obs: Tensor | None, expert_windows: Tensor) -> Tensor:
+        """n latents for rollouts, from raw online next states (None while the buffer is empty) and demo windows."""
+        ...
+
+    def act(self, obs: Tensor, z: Tensor) -> Tensor:
+        """Exploration actions (N, action_dim) in [-1, 1] for raw observations and rollout latents."""
+        ...
+
+    def update(self, batch: dict[str, Tensor], expert_windows: Tensor) -> Mapping[str, float]:
+        """One learning step from a replay batch and raw demonstration windows (w, L, obs_dim); returns metrics
+        (a `fbcpr.nn.lazy_metrics.LazyMetrics`, so that the step does not wait for the device)."""
+        ...
+
+    def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
+        """Called once after a warm start loaded another run's weights into `model`: every target network := its
+        online network, and whatever else the agent derives from the loaded model. `reward_sample()` reads the
+        loaded checkpoint's reward-inference sample (None where it has none), for an agent that needs it."""
+        ...
+
+    def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:
+        """(tensors, JSON metadata) beyond `model` needed to continue exactly."""
+        ...
+
+    def load_state(self, tensors: dict[str, Tensor], meta: dict[str, Any]) -> None:
+        ...
+
+
+@runtime_checkable
+class ImitationReward(Protocol):
+    """A reward learned from demonstrations (AMP's D(s, s'), FB-CPR's D(s, z); NEAR's energy, VIRL's comparator)."""
+
+    def fit(self, expert_windows: Tensor, batch: dict[str, Tensor]) -> dict[str, float]:
+        """One fitting step on raw expert windows (w, L, obs_dim) and an online replay batch; returns metrics."""
+        ...
+
+    def reward(self, obs: Tensor, next_obs: Tensor, z: Tensor | None = None) -> Tensor:
+        """(N,) rewards for raw transitions (s, s') (and latents, for latent-conditioned rewards), without gradient."""
+        ...
+
+    def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:
+        ...
+
+    def load_state(self, tensors: dict[str, Tensor], meta: dict[str, Any]) -> None:
+        ...

@@ -1,0 +1,1 @@
+"""Using a trained model: BFM, prompts (reward, goal, tracking), stored prompts, timelines, refinement, weight mixes."""

@@ -1,0 +1,121 @@
+"""Reward prompts of the named tasks inferred once, at export, from more states than a checkpoint keeps.
+
+A reward prompt is a weighted regression over reward-inference states, z ∝ Σ exp(τ r) r B(s) (`fbcpr.inference.prompt`).
+With τ = 10 most of the weight falls on the few states of highest reward, so which states a sample holds moves z:
+two draws of 50,000 of one model's own states walked 70.9 and 85.8 under the walk prompt (lab/log.md section
+42). A checkpoint that ships keeps ~50k states within its size budget, while a named task's z is z_dim numbers (64):
+`infer_reward_prompts` regresses them on every state given to the export (500,000 from ten rollout runs in section 43),
+and the checkpoint stores them in reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the
+stored z for a named task under the default inference settings; a user's reward, a combined name or other settings
+are inferred from the subsample as before.
+
+The z's belong to the weights they were inferred with: their metadata records a digest of the model's tensors,
+a checkpoint whose weights do not match it is refused on load, and a save after the weights changed drops them.
+"""
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from fbcpr.core.checkpoint import PROMPTS_FILE, CheckpointError
+from fbcpr.core.errors import InputError
+from fbcpr.nn.latents import TEMPERATURE
+
+if TYPE_CHECKING:
+    from fbcpr.inference.bfm import BFM
+
+#: The inference method stored prompts were made with: `Prompt.reward`'s default.
+METHOD = "weighted"
+#: Most states prompts are inferred from at once: B of a million states takes 1 GB beside their 1.4 GB of
+#: observations, and two pools of five own-states draws (250,000 states each) already agree to a cosine
+#: of 0.95 (section 43).
+MAX_STATES = 1_000_000
+#: Most prompts a file may store (the registry names 54 tasks): each one's name is parsed on load.
+MAX_PROMPTS = 4096
+
+
+@dataclass(frozen=True)
+class RewardPrompts:
+    """z (on the model's sphere) per task name, the number of states they were inferred from, and the digest of
+    the weights they belong to."""
+
+    z: dict[str, np.ndarray]
+    states: int
+    digest: str
+
+    def to_tensors(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """What `save_checkpoint(reward_prompts=...)` writes: one tensor per task and the JSON metadata."""
+        meta = {"states": self.states, "digest": self.digest, "method": METHOD, "temperature": TEMPERATURE}
+        return {name: torch.as_tensor(z) for name, z in self.z.items()}, meta
+
+
+def weights_digest(model: torch.nn.Module) -> str:
+    """SHA-256 over every tensor of the model (names, shapes and bytes): the weights a stored prompt belongs to."""
+    h = hashlib.sha256()
+    for name, t in sorted(model.state_dict().items()):
+        arr = t.detach().cpu().contiguous().numpy()
+        h.update(f"{name}:{arr.dtype}:{arr.shape};".encode())
+        h.update(arr.tobytes())
+    return h.hexdigest()
+
+
+def infer_reward_prompts(bfm: "BFM", tasks: Sequence[str]) -> RewardPrompts:
+    """z for each named task, regressed on all of the model's reward-inference states (no subsample).
+
+    A task these states cannot prompt (it pays nothing on any of them) is left out: its prompt is then inferred
+    from the checkpoint's states when asked, and fails there with the reason. Raises PromptError for an unknown
+    task name, InputError for more than MAX_STATES states, and CheckpointError for a model without reward states."""
+    from fbcpr.inference.prompt import PromptError, regress_reward, reward_fn  # fbcpr.inference.prompt imports this module
+
+    buf = bfm.reward_buffer
+    if buf is None:
+        raise CheckpointError(f"{bfm.source}: has no reward-inference states to infer reward prompts from")
+    if len(buf["next_obs"]) > MAX_STATES:
+        raise InputError(f"{len(buf['next_obs']):,} reward states to infer prompts from; at most {MAX_STATES:,} "
+                         "(pool fewer runs with --reward-states-from)")
+    fns = {label: fn for fn, label in map(reward_fn, tasks)}  # unknown names fail before any work
+    b = bfm.backward(buf["next_obs"], as_tensor=True)
+    z = {}
+    for label, fn in fns.items():
+        try:
+            z[label] = bfm.project_z(regress_reward(fn, label, buf, b, METHOD, TEMPERATURE))
+        except PromptError:
+            continue
+    return RewardPrompts(z, int(b.shape[0]), weights_digest(bfm.model))
+
+
+def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], model: torch.nn.Module,
+                        where: Path) -> RewardPrompts:
+    """Check stored prompts against the model they were loaded with; CheckpointError naming `where` and the
+    problem (other weights, other settings, a wrong shape, NaN, or a name the task registry does not know)."""
+    from fbcpr.inference.prompt import PromptError, reward_fn
+
+    file = where / PROMPTS_FILE
+    if meta.get("method") != METHOD or meta.get("temperature") != TEMPERATURE:
+        raise CheckpointError(f"{file}: made by {meta.get('method')!r} inference at temperature "
+                              f"{meta.get('temperature')!r}; prompts use {METHOD!r} at {TEMPERATURE}")
+    if meta.get("digest") != weights_digest(model):
+        raise CheckpointError(f"{file}: these reward prompts were inferred for other weights than "
+                              f"{where / 'model.safetensors'}; export the model again to infer its own")
+    states = meta.get("states")
+    if not isinstance(states, int) or states < 1:
+        raise CheckpointError(f"{file}: metadata 'states' must be a positive count, got {states!r}")
+    if len(tensors) > MAX_PROMPTS:
+        raise CheckpointError(f"{file}: {len(tensors):,} prompts; a checkpoint stores at most {MAX_PROMPTS:,}")
+    z_dim = int(model.z_dim)
+    z = {}
+    for name, t in tensors.items():
+        if tuple(t.shape) != (z_dim,) or not bool(torch.isfinite(t).all()):
+            raise CheckpointError(f"{file}: {name!r} must be a finite ({z_dim},) z, got shape {tuple(t.shape)}")
+        try:
+            reward_fn(name)
+        except PromptError as err:
+            raise CheckpointError(f"{file}: {err}") from None
+        z[name] = t.float().cpu().numpy()
+    return RewardPrompts(z, states, meta["digest"])

@@ -1,0 +1,57 @@
+"""The `agent:` section of `algorithm: td3` (Table 8) with its reward sources and their imitation-reward sections."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from fbcpr.rewards.amp.config import AMPConfig
+from fbcpr.core.config import NON_NEGATIVE, POSITIVE, ConfigError, _check, _f
+from fbcpr.rewards.near.config import NEARConfig
+from fbcpr.rewards.progress import ProgressConfig
+from fbcpr.rewards.virl.config import VIRLConfig
+
+
+@dataclass
+class RewardConfig:
+    """The reward TD3 maximises: task_weight * task(s') + imitation_weight * imitation(s, s') (NEAR Eq. 3 style).
+
+    `task` names a reward of the env's registry (humanoid_env.tasks, or the toy's tasks); `imitation` names an
+    `fbcpr.core.registry.IMITATION_REWARDS` entry learned from the env's demonstrations. Either may be null."""
+
+    task: str | None = _f(None)
+    task_weight: float = _f(1.0, NON_NEGATIVE)
+    imitation: str | None = _f(None)
+    imitation_weight: float = _f(1.0, NON_NEGATIVE)
+
+    def validate(self, prefix: str) -> None:
+        if not (self.task and self.task_weight > 0) and not (self.imitation and self.imitation_weight > 0):
+            raise ConfigError(f"{prefix}: give a task, an imitation reward, or both, with a weight > 0")
+
+
+@dataclass
+class TD3Config:
+    """TD3 hyperparameters (Table 8): critic and actor rates, Polyak tau, ensemble penalties (0: the mean)."""
+
+    batch_size: int = _f(1024, _check(lambda v: v >= 2, "must be >= 2"))
+    seq_length: int = _f(8, _check(lambda v: v >= 2, "must be >= 2"))  # demo windows: L - 1 expert transitions each
+    discount: float = _f(0.98, _check(lambda v: 0.0 <= v < 1.0, "must be in [0, 1)"))
+    lr_actor: float = _f(1e-4, POSITIVE)
+    lr_critic: float = _f(1e-4, POSITIVE)
+    tau: float = _f(0.005, _check(lambda v: 0.0 < v <= 1.0, "must be in (0, 1]"))
+    critic_pessimism: float = _f(0.0, NON_NEGATIVE)
+    actor_pessimism: float = _f(0.0, NON_NEGATIVE)
+    action_penalty: float = _f(0.0, NON_NEGATIVE)  # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
+    # TD3+BC (Fujimoto & Gu, 2021) on the batch's demonstration rows (train.demonstration_share): the squared error
+    # to their actions, scaled like action_penalty by the mean |Q|, so the policy's actions where it bootstraps on
+    # demonstrated states stay near those the critic was trained on (alone it slowed section 32's divergence and did
+    # not stop it: lab/log.md section 33)
+    bc_weight: float = _f(0.0, NON_NEGATIVE)
+    # the TD target of a demonstration row bootstraps on the demonstrator's next action, not the policy's: a critic
+    # that only saw demonstrated actions there overrates the policy's nearby ones, and its target carried that gap
+    # back along every demonstration, times 1 / (1 - discount) (lab/log.md section 33)
+    bootstrap_demo_actions: bool = _f(False)
+    bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    amp: AMPConfig = field(default_factory=AMPConfig)
+    near: NEARConfig = field(default_factory=NEARConfig)
+    virl: VIRLConfig = field(default_factory=VIRLConfig)
+    progress: ProgressConfig = field(default_factory=ProgressConfig)

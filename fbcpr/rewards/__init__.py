@@ -1,0 +1,1 @@
+"""Imitation rewards an RL agent trains on (AMP, NEAR, VIRL, progress); each owns its config section."""

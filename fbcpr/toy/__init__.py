@@ -1,1 +1,0 @@
-"""A toy point-mass world with demonstrations, for fast tests and learning evidence."""

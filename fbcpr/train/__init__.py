@@ -1,0 +1,1 @@
+"""The one online training loop: rollouts, replay buffer, device batches, checkpoints, evaluations."""
