@@ -30,7 +30,8 @@ import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
 
-from fbcpr.core.config import dump_config, find_config, load_config
+from fbcpr.core.config import find_config, load_config
+from fbcpr.core.schema import dump_config
 from fbcpr.core.registry import get_method
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -151,7 +151,7 @@ def load_clip(path: str | os.PathLike) -> Clip:
 
 def _import_hint(path: Path) -> str:
     """A pointer to the importer when a file that is not a clip is a motion file the importers read."""
-    from motions.importers import UnknownFormatError, detect_format
+    from motions.formats import UnknownFormatError, detect_format
 
     try:
         fmt = detect_format(path)

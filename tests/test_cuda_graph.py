@@ -11,7 +11,8 @@ import pytest
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
-from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
 from fbcpr.nn.cuda_graph import GraphedStep, make_capturable
 from fbcpr.methods.fb_cpr import losses
 from test_fbcpr_agent import make_agent, make_batch

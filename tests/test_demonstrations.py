@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
 from fbcpr.train.trainer import Trainer
 from humanoid_env.model import NU, NV, default_qpos
 from humanoid_env.env import HumanoidEnv

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from fbcpr.train.buffer import ReplayBuffer, transition_specs
-from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
 from fbcpr.train.device_batches import DeviceBatches
 from fbcpr.train.trainer import Trainer, _memory_bytes, check_memory
 from motions.clip import from_qpos

@@ -16,7 +16,9 @@ from safetensors.torch import load_file, save_file
 
 from fbcpr.nn import distributed
 from fbcpr.core.checkpoint import load_checkpoint
-from fbcpr.core.config import ConfigError, config_from_dict, dump_config
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import dump_config
 from fbcpr.nn.normalizer import RunningNormalizer
 from fbcpr.methods.td3.agent import TD3Agent
 from fbcpr.envs import toy as pm

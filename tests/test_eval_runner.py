@@ -6,7 +6,8 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from fbcpr.eval.agents import Agent, RandomAgent, ZeroAgent, make_agent
+from fbcpr.eval.agents import Agent, RandomAgent, ZeroAgent
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.runner import evaluate
 from humanoid_env.actions import ActionMap
 from humanoid_env.model import load_model
@@ -204,7 +205,7 @@ class Unpromptable(PoseOracle):
         self.stop_at = stop_at
 
     def reward_z(self, reward):
-        from fbcpr.inference.prompt import PromptError
+        from fbcpr.core.errors import PromptError
 
         if reward == "jump-2":
             raise PromptError("reward 'jump-2' is zero on all 1024 buffer samples")

@@ -126,7 +126,8 @@ def test_bf16_auto_follows_the_measured_speed(monkeypatch):
 
 
 def test_bf16_setting_is_validated():
-    from fbcpr.core.config import ConfigError, config_from_dict
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.core.errors import ConfigError
 
     assert config_from_dict({"agent": {"bf16": "auto"}}).agent.bf16 == "auto"
     with pytest.raises(ConfigError, match="agent.bf16"):

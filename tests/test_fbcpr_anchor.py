@@ -10,7 +10,8 @@ import torch
 
 from conftest import toy_run_config
 from fbcpr.core.checkpoint import CheckpointError
-from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
 from fbcpr.methods.fb_cpr.agent import FBCPRAgent
 from fbcpr.methods.fb_cpr.anchor import ActorAnchor
 from fbcpr.methods.fb_cpr.imitation import encode_windows

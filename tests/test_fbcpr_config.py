@@ -3,7 +3,9 @@ from pathlib import Path
 
 import pytest
 
-from fbcpr.core.config import PRESETS, ConfigError, config_from_dict, dump_config, load_config
+from fbcpr.core.config import config_from_dict, load_config
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import PRESETS, dump_config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -148,7 +150,7 @@ def test_shipped_configs_are_found_by_name(tmp_path, monkeypatch):
 
 
 def test_env_of_a_model_only_config_is_the_default_humanoid():
-    from fbcpr.core.config import ModelConfig, env_of
+    from fbcpr.core.schema import ModelConfig, env_of
 
     toy = config_from_dict({"env": {"name": "toy"}})
     assert env_of(toy) is toy.env and env_of(toy).name == "toy"

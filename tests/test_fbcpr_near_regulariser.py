@@ -6,7 +6,8 @@ import torch
 
 from conftest import toy_run_config
 from fbcpr.core.checkpoint import CheckpointError
-from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
 from fbcpr.methods.fb_cpr.agent import FBCPRAgent
 from fbcpr.rewards.near.conditional import ConditionalEnergy
 from fbcpr.rewards.near.config import NEARConfig

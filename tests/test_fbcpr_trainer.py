@@ -11,7 +11,8 @@ from typer.testing import CliRunner
 
 from fbcpr.train.buffer import ReplayBuffer, transition_specs
 from fbcpr.core.checkpoint import load_checkpoint, save_checkpoint
-from fbcpr.core.config import config_from_dict, dump_config
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.schema import dump_config
 from fbcpr.envs import toy as pm
 from fbcpr.train.trainer import Trainer
 

@@ -215,7 +215,8 @@ def test_motions_info_lists_good_clips_beside_bad_ones(tmp_path):
     ("model", "z_dim", 10**6), ("agent", "batch_size", 10**9), ("model", "hidden_layers", 10**4),
 ])
 def test_config_ranges_name_the_key(section, key, value):
-    from fbcpr.core.config import ConfigError, config_from_dict
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match=rf"^{section}\.{key}: must be"):
         config_from_dict({section: {key: value}})
@@ -227,7 +228,8 @@ def test_config_ranges_name_the_key(section, key, value):
     (b"train:\n  seed: \xff\xfe\n", "not UTF-8 text"),
 ])
 def test_bad_config_files_are_config_errors(tmp_path, content, message):
-    from fbcpr.core.config import ConfigError, load_config
+    from fbcpr.core.config import load_config
+    from fbcpr.core.errors import ConfigError
 
     path = tmp_path / "c.yaml"
     path.write_bytes(content)
@@ -236,7 +238,8 @@ def test_bad_config_files_are_config_errors(tmp_path, content, message):
 
 
 def test_a_directory_as_config_is_a_config_error(tmp_path):
-    from fbcpr.core.config import ConfigError, load_config
+    from fbcpr.core.config import load_config
+    from fbcpr.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="is a directory"):
         load_config(tmp_path)
@@ -249,7 +252,7 @@ def test_a_directory_as_config_is_a_config_error(tmp_path):
     ("jump-2:inf", "at most 3600"), ("jump-2:nan", "positive number"), ("jump-2:0", "positive number"),
 ])
 def test_timeline_durations_are_bounded(text, message):
-    from fbcpr.inference.prompt import PromptError
+    from fbcpr.core.errors import PromptError
     from fbcpr.inference.timeline import parse_timeline
 
     with pytest.raises(PromptError, match=message):
@@ -257,7 +260,7 @@ def test_timeline_durations_are_bounded(text, message):
 
 
 def test_timeline_total_is_bounded_before_any_prompt_runs():
-    from fbcpr.inference.prompt import PromptError
+    from fbcpr.core.errors import PromptError
     from fbcpr.inference.timeline import Timeline
 
     with pytest.raises(PromptError, match=r"segment 2 \(walk\): the timeline would last 4000 s"):
@@ -461,7 +464,8 @@ def test_act_never_returns_non_finite_actions(obs_value, z_value, message):
 
 @pytest.mark.parametrize("temperature", [-1.0, np.nan, np.inf])
 def test_reward_temperature_is_validated_and_named(temperature):
-    from fbcpr.inference.prompt import Prompt, PromptError
+    from fbcpr.core.errors import PromptError
+    from fbcpr.inference.prompt import Prompt
 
     with pytest.raises(PromptError, match="temperature: must be a finite number >= 0"):
         Prompt(_bfm()).reward(lambda *a: np.zeros(1), temperature=temperature)
@@ -530,7 +534,8 @@ def test_memory_is_estimated_up_front_naming_the_key(tmp_path, monkeypatch, trai
     import shutil
 
     import fbcpr.train.trainer as trainer_mod
-    from fbcpr.core.config import ConfigError, config_from_dict
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.core.errors import ConfigError
 
     monkeypatch.setattr(trainer_mod, "_memory_bytes", lambda device: 8 * 2**30)
     monkeypatch.setattr(trainer_mod.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(2**40, 2**40 - 2**30, 2**30))
@@ -556,7 +561,7 @@ def test_a_full_disk_fails_in_one_line_before_anything_is_written(tmp_path, monk
 
 
 @pytest.mark.parametrize("call, error", [
-    (lambda: __import__("fbcpr.eval.metrics", fromlist=["x"]).emd(np.zeros((0, 3)), np.zeros((2, 3))),
+    (lambda: __import__("fbcpr.metrics", fromlist=["x"]).emd(np.zeros((0, 3)), np.zeros((2, 3))),
      "fbcpr.core.errors:InputError"),
     (lambda: __import__("humanoid_env.vector", fromlist=["x"]).VectorHumanoidEnv(0), "humanoid_env.errors:EnvError"),
     (lambda: __import__("humanoid_env.vector", fromlist=["x"]).VectorHumanoidEnv(2).reset(
@@ -572,7 +577,7 @@ def test_bad_input_ends_in_the_packages_own_error_types(call, error):
 
 
 def test_resume_with_other_num_envs_names_the_key(tmp_path):
-    from fbcpr.core.config import ConfigError
+    from fbcpr.core.errors import ConfigError
     from fbcpr.train.trainer import Trainer
 
     tr = _toy_trainer(tmp_path / "run")

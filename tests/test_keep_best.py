@@ -10,8 +10,9 @@ import torch
 from conftest import toy_run_config
 from fbcpr.inference.bfm import resolve_checkpoint
 from fbcpr.core.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, read_trainer_meta
-from fbcpr.core.config import ConfigError, config_from_dict
-from fbcpr.eval.agents import make_agent
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.runner import evaluate
 from fbcpr.train.trainer import Trainer
 from motions.library import MotionLibrary

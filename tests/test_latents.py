@@ -7,7 +7,7 @@ import torch
 
 from fbcpr.inference.bfm import BFM
 from fbcpr.core.config import config_from_dict
-from fbcpr.envs.bundle import tracking_latents
+from fbcpr.eval.tracking import tracking_latents
 from fbcpr.nn.latents import reward_weights, tracking_sums
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 

@@ -7,7 +7,8 @@ import torch
 import yaml
 
 from fbcpr.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
 from fbcpr.methods.fb_cpr.agent import FBCPRAgent
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 from fbcpr.core.registry import DEFAULT_ALGORITHM, METHODS, get_method

@@ -4,7 +4,7 @@ import warnings
 import numpy as np
 import pytest
 
-from fbcpr.eval.metrics import d_smpl, emd, goal_proximity, goal_success, pose_part, tracking_success
+from fbcpr.metrics import d_smpl, emd, goal_proximity, goal_success, pose_part, tracking_success
 
 
 def traj(values, dim=0):
@@ -79,7 +79,7 @@ def test_metric_inputs_are_checked():
 
 
 def test_dtw_pose_error_forgives_time_warps_but_not_offsets():
-    from fbcpr.eval.metrics import dtw_pose_error
+    from fbcpr.metrics import dtw_pose_error
 
     t = np.linspace(0, 2 * np.pi, 50)
     path = np.stack([np.cos(t), np.sin(t), 0.1 * t], 1)
@@ -96,7 +96,7 @@ def test_dtw_pose_error_forgives_time_warps_but_not_offsets():
 
 
 def test_sparc_ranks_smooth_above_jerky_and_ignores_duration():
-    from fbcpr.eval.metrics import sparc, speed_profile
+    from fbcpr.metrics import sparc, speed_profile
 
     fps = 30.0
 

@@ -90,7 +90,7 @@ def test_load_folder_and_errors(tmp_path):
 
 
 def test_env_motions_takes_one_clip_file_for_single_demonstration_imitation(tmp_path):
-    from fbcpr.core.config import EnvConfig
+    from fbcpr.core.schema import EnvConfig
     from fbcpr.envs.bundle import make_env
 
     for c in (_clip("x", 40, 1.0), _clip("y", 60, 1.0)):
@@ -101,7 +101,8 @@ def test_env_motions_takes_one_clip_file_for_single_demonstration_imitation(tmp_
 
 
 def test_focus_clips_start_their_share_of_episodes_on_the_named_clips(tmp_path):
-    from fbcpr.core.config import ConfigError, EnvConfig
+    from fbcpr.core.errors import ConfigError
+    from fbcpr.core.schema import EnvConfig
     from fbcpr.envs.bundle import make_env
 
     for c in (_clip("x", 40, 1.0, tag=1), _clip("y", 60, 1.0, tag=2)):
@@ -123,7 +124,9 @@ def test_focus_clips_start_their_share_of_episodes_on_the_named_clips(tmp_path):
 
 
 def test_focus_motions_start_their_share_of_episodes_on_clips_outside_the_library(tmp_path):
-    from fbcpr.core.config import ConfigError, EnvConfig, config_from_dict, load_config
+    from fbcpr.core.config import config_from_dict, load_config
+    from fbcpr.core.errors import ConfigError
+    from fbcpr.core.schema import EnvConfig
     from fbcpr.envs.bundle import make_env
     from motions.demonstrations import Demonstration, save_demonstration
 

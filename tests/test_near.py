@@ -6,7 +6,8 @@ import pytest
 import torch
 from safetensors.torch import load_file, save_file
 
-from fbcpr.core.config import ConfigError, config_from_dict, load_config
+from fbcpr.core.config import config_from_dict, load_config
+from fbcpr.core.errors import ConfigError
 from fbcpr.rewards.near.annealing import Annealer
 from fbcpr.rewards.near.config import NEARConfig
 from fbcpr.rewards.near.energy import EnergyNet, dsm_loss, noise_levels

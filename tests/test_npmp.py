@@ -11,15 +11,16 @@ import torch
 
 from fbcpr.inference.bfm import BFM
 from fbcpr.core.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint
-from fbcpr.core.config import ConfigError, config_from_dict
-from fbcpr.eval.agents import load_tracker, make_agent
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
+from fbcpr.inference.agents import load_tracker, make_agent
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 from fbcpr.apps.npmp.agent import NPMPAgent
 from fbcpr.apps.npmp.config import npmp_config
 from fbcpr.apps.npmp.data import DataError, ExpertData, collect, expert_jacobian
 from fbcpr.apps.npmp.distill import Distiller, distill
 from fbcpr.apps.npmp.model import NPMPModel, future_indices, kl_to_prior
-from fbcpr.inference.prompt import PromptError
+from fbcpr.core.errors import PromptError
 from humanoid_env.model import load_model
 from motions.clip import from_qpos
 from motions.library import MotionLibrary

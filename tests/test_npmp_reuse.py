@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from fbcpr.core.config import ConfigError, EnvConfig, config_from_dict, load_config
+from fbcpr.core.config import config_from_dict, load_config
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import EnvConfig
 from fbcpr.envs.bundle import make_env
 from fbcpr.apps.npmp.checkpoint import save_npmp
 from fbcpr.apps.npmp.config import npmp_config

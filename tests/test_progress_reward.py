@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from conftest import humanoid_states
-from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
 from fbcpr.core.registry import imitation_reward
 from fbcpr.rewards.progress import MAX_FRAMES, ProgressConfig, ProgressReward
 from fbcpr.core.protocols import ImitationReward

@@ -9,7 +9,8 @@ from conftest import humanoid_states
 from fbcpr.inference.bfm import BFM
 from fbcpr.core.config import config_from_dict
 from fbcpr.methods.fb_cpr.model import FBCPRModel
-from fbcpr.inference.prompt import PromptError, goal_reward
+from fbcpr.core.errors import PromptError
+from fbcpr.inference.prompt import goal_reward
 from fbcpr.inference.timeline import Timeline, parse_timeline
 from humanoid_env.model import NV, load_model
 from humanoid_env.observation import observe
@@ -53,7 +54,7 @@ def test_goal_z_is_normalized_b_of_goal(bfm):
 
 
 def test_goal_from_states_is_the_weighted_regression_of_the_goal_proximity(bfm):
-    from fbcpr.eval.metrics import d_smpl
+    from fbcpr.metrics import d_smpl
 
     buf, goal = bfm.reward_buffer, goal_obs("t_pose")
     r = np.exp(-d_smpl(buf["next_obs"], goal) / 2.0)
@@ -274,7 +275,8 @@ def test_prompts_steer_a_trained_toy_model(tmp_path):
 
 
 def test_unknown_names_suggest_the_closest_and_do_not_repeat_themselves():
-    from fbcpr.inference.prompt import PromptError, reward_fn, goal_observation
+    from fbcpr.core.errors import PromptError
+    from fbcpr.inference.prompt import goal_observation, reward_fn
 
     with pytest.raises(PromptError) as err:
         reward_fn("jupm-2")
@@ -284,7 +286,8 @@ def test_unknown_names_suggest_the_closest_and_do_not_repeat_themselves():
 
 
 def test_a_folder_given_as_a_clip_lists_its_clips(tmp_path):
-    from fbcpr.inference.prompt import PromptError, load_motion
+    from fbcpr.core.errors import PromptError
+    from fbcpr.inference.prompt import load_motion
     from motions.clip import save_clip
     from motions.synthetic import stand
 

@@ -9,7 +9,7 @@ from rich.progress import Progress
 from conftest import tiny_humanoid_checkpoint
 from fbcpr.inference.bfm import BFM
 from fbcpr.eval.runner import reward_suite
-from fbcpr.inference.prompt import PromptError
+from fbcpr.core.errors import PromptError
 from fbcpr.inference.refine import Search, cross_entropy, goal_objective, project, refine, reward_objective, rollout_score
 from humanoid_env.inits import DefaultInit
 from humanoid_env.tasks import goal_obs

@@ -13,7 +13,7 @@ from fbcpr import BFM
 from fbcpr.core.checkpoint import PROMPTS_FILE, CheckpointError, load_checkpoint, save_checkpoint
 from fbcpr.cli.app import app
 from fbcpr.inference.interpolation import interpolate, with_reward_states
-from fbcpr.inference.prompt import PromptError
+from fbcpr.core.errors import PromptError
 from fbcpr.inference.reward_prompts import RewardPrompts, infer_reward_prompts, weights_digest
 from humanoid_env.tasks.rewards import TASKS
 

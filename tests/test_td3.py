@@ -8,7 +8,8 @@ import torch
 
 from fbcpr.inference.bfm import BFM
 from fbcpr.core.checkpoint import CheckpointError, load_checkpoint
-from fbcpr.core.config import ConfigError, config_from_dict, load_config
+from fbcpr.core.config import config_from_dict, load_config
+from fbcpr.core.errors import ConfigError
 from fbcpr.methods.td3.agent import TD3Agent
 from fbcpr.methods.td3.model import TD3Model
 from fbcpr.eval.toy import task_return

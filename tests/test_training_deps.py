@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from fbcpr.eval import metrics
+from fbcpr import metrics
 
 # Runs in a fresh interpreter with the packages the GPU image lacks made unimportable, recording every attempt;
 # trains twice through a priority refresh: without scipy (no EMD solver at all), then with it (assignment EMD).

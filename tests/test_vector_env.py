@@ -200,7 +200,7 @@ def test_reset_fallen_after_rejects_bad_values(bad):
 
 @pytest.mark.parametrize("seconds, steps", [(0.0, 0), (0.5, 15), (0.01, 1)])
 def test_config_reset_fallen_s_reaches_the_training_env_only(seconds, steps):
-    from fbcpr.core.config import EnvConfig
+    from fbcpr.core.schema import EnvConfig
     from fbcpr.envs.bundle import make_env
 
     bundle = make_env(EnvConfig(name="humanoid", reset_fallen_s=seconds), 1, 0)

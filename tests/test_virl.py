@@ -10,7 +10,8 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from fbcpr.train.buffer import ReplayBuffer, transition_specs
-from fbcpr.core.config import ConfigError, config_from_dict
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.errors import ConfigError
 from fbcpr.core.protocols import ImitationReward
 from fbcpr.envs import toy as pm
 from fbcpr.rewards.virl.config import VIRLConfig

@@ -48,7 +48,7 @@ def eval_command(
     seed: int = typer.Option(0, "--seed", help="Seed of the initial states (and of the random baseline)."),
 ) -> None:
     """Evaluate an agent zero-shot on reward tasks, goal poses and motion tracking (paper App. C.3)."""
-    from fbcpr.eval.agents import make_agent
+    from fbcpr.inference.agents import make_agent
     from fbcpr.eval.report import print_report
     from fbcpr.eval.runner import evaluate
 

@@ -124,7 +124,7 @@ def eval_command(
     """One-shot tracking of every clip by each NPMP and by the expert: EMD, success, and each NPMP relative to the
     expert (EMD_expert / EMD_npmp), on the clips it was distilled on and on held-out ones."""
     from fbcpr.inference.bfm import BFM
-    from fbcpr.eval.agents import load_tracker
+    from fbcpr.inference.agents import load_tracker
     from fbcpr.eval.runner import tracking_suite, write_json
     from fbcpr.apps.npmp.agent import NPMPAgent
     from fbcpr.apps.npmp.evaluate import relative_to_expert

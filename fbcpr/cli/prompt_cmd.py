@@ -191,7 +191,7 @@ def prompt_command(
 ) -> None:
     """Prompt a model with one reward, goal or clip, roll it out and print return and metrics (`fbcpr tasks` lists
     the reward tasks and goal poses)."""
-    from fbcpr.eval.metrics import d_smpl, emd, goal_proximity, goal_success
+    from fbcpr.metrics import d_smpl, emd, goal_proximity, goal_success
     from fbcpr.inference.prompt import goal_observation
 
     given = [x for x in (reward, goal, imitate) if x is not None]
@@ -255,11 +255,11 @@ def track_command(
     """Track a clip with one z per step and print tracking success (d_smpl <= 0.5 throughout) and EMD.
 
     CKPT is a BFM (z's from ER_FB of the next states) or an NPMP checkpoint (z's from its encoder)."""
-    from fbcpr.eval.metrics import d_smpl, emd, tracking_success
+    from fbcpr.metrics import d_smpl, emd, tracking_success
 
     if video is not None:
         require_renderer()
-    from fbcpr.eval.agents import load_tracker
+    from fbcpr.inference.agents import load_tracker
 
     clip = _load_clip(clip_path)
     agent = load_tracker(ckpt, device)  # a BFM (ER_FB latents) or an NPMP (its encoder's latents)
@@ -307,7 +307,7 @@ def timeline_command(
 
 def timeline_table(timeline: Any, ep: Episode) -> Table:
     """Per segment: mean reward (reward tasks), final d_smpl (goals) or EMD (clips) over the steps it ran."""
-    from fbcpr.eval.metrics import d_smpl, emd
+    from fbcpr.metrics import d_smpl, emd
     from fbcpr.inference.prompt import goal_observation
 
     table = Table(title="timeline")

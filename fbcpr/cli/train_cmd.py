@@ -27,7 +27,8 @@ def train_command(
 ) -> None:
     """Train FB-CPR online; Ctrl-C (or SIGTERM, SIGHUP) stops at the next safe point with a final checkpoint.
     Data-parallel over processes and machines: `torchrun --nproc_per_node=N -m fbcpr train ...`."""
-    from fbcpr.core.config import ConfigError, find_config, load_config
+    from fbcpr.core.config import find_config, load_config
+    from fbcpr.core.errors import ConfigError
     from fbcpr.nn.distributed import launched_rank
     from fbcpr.train.trainer import checkpoint_env_steps, resolve_device, train
 

@@ -6,7 +6,7 @@ Layout of a checkpoint directory:
     manifest.json               format version, method (`algorithm`), library versions, sha256 and shapes of every file
     trainer_state.safetensors   optional: target nets, optimizer moments; JSON scalars/counters/RNG in its header
     reward_buffer.safetensors   optional: next_obs, qpos, qvel subsample for reward prompts (exports may store
-                                the states alone: next_obs is rebuilt from them on load, `fbcpr.envs.bundle.state_observer`)
+                                the states alone: next_obs is rebuilt from them on load, the env kind's observer in `fbcpr.core.registry.ENVS`)
     reward_prompts.safetensors  optional: the reward prompts (z) of the named tasks, inferred at export from more
                                 states than reward_buffer keeps (`fbcpr.inference.reward_prompts`)
     replay_buffer.safetensors   optional: the whole replay buffer (exact resume)
@@ -35,10 +35,11 @@ import yaml
 from safetensors.torch import load_file, save_file
 
 import fbcpr
-from fbcpr.core.config import (Config, ConfigError, ModelConfig, config_from_dict, config_to_dict, env_of,
-                          model_config_from_dict)
+from fbcpr.core.config import config_from_dict, model_config_from_dict
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import Config, ModelConfig, config_to_dict, env_of
 from fbcpr.core.errors import FBCPRError
-from fbcpr.core.registry import DEFAULT_ALGORITHM, METHODS, get_method
+from fbcpr.core.registry import DEFAULT_ALGORITHM, METHODS, env_kind, get_method
 from humanoid_env.actions import LEGACY_ACTION_MAPPING
 
 FORMAT = "fbcpr-checkpoint"
@@ -98,9 +99,7 @@ class Checkpoint:
         buf = {k: tensors[k].float().numpy() for k in STATE_KEYS}  # compact exports store float16
         if not states_only:
             return {"next_obs": tensors["next_obs"].float().numpy(), **buf}
-        from fbcpr.envs.bundle import state_observer  # lazy: the env's kinematics only for states-only samples
-
-        observer = state_observer(env_of(self.config).name)
+        observer = env_kind(env_of(self.config).name).observer()
         if buf["qpos"].ndim != 2 or buf["qvel"].ndim != 2 or len(buf["qpos"]) != len(buf["qvel"]):
             raise CheckpointError(f"{self.path / REWARD_FILE}: qpos {tuple(buf['qpos'].shape)} and qvel "
                                   f"{tuple(buf['qvel'].shape)} are not one row per state")
@@ -409,3 +408,15 @@ def load_state_strict(module: torch.nn.Module, tensors: dict[str, torch.Tensor],
         if v.is_floating_point() and not torch.isfinite(tensors[k]).all():
             raise CheckpointError(f"{where}: tensor {k!r} contains NaN or inf")
     module.load_state_dict(tensors)
+
+
+def inconsistent_rows(buf: dict[str, np.ndarray], env_name: str, rows: int = 64) -> float:
+    """Share of the first `rows` rows whose next_obs is not the observation of their own (qpos, qvel), to float16
+    precision (0.0 for an empty sample). Rows mixed across transitions score about 1.0."""
+    n = min(rows, len(buf["qpos"]))
+    if n == 0:
+        return 0.0
+    rebuilt = env_kind(env_name).observer()(buf["qpos"][:n], buf["qvel"][:n])
+    stored = np.asarray(buf["next_obs"][:n], dtype=np.float32)
+    ok = np.isclose(rebuilt, stored, rtol=0.02, atol=0.02).all(axis=1)
+    return float(1.0 - ok.mean())

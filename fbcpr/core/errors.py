@@ -14,3 +14,11 @@ class FBCPRError(Exception):
 class InputError(FBCPRError, ValueError):
     """An array or argument handed to the public API (observations, latents, trajectories, options) of the wrong
     shape, type or range, or not finite."""
+
+
+class ConfigError(FBCPRError, ValueError):
+    """A configuration value that is unknown, of the wrong type or out of range; the message names the key."""
+
+
+class PromptError(FBCPRError, ValueError):
+    """A prompt that cannot be turned into a z (unknown task, wrong shape, empty buffer, ...)."""

@@ -1,4 +1,6 @@
-"""The two seams between a method and the rest of the package.
+"""The seams between a method, an environment and the rest of the package.
+
+`EnvBundle` is all that the trainer and an agent know of an environment (built by `fbcpr.envs`).
 
 `OnlineAgent` is what the one online trainer (`fbcpr.train.trainer.Trainer`) drives, whatever the method:
 
@@ -20,11 +22,39 @@ A sequence reward (VIRL) also has an int attribute `history` > 0: the agent then
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 import torch
 from torch import Tensor, nn
+
+
+#: A registry reward on next states: (next_obs (N, obs_dim), qpos (N, nq), qvel (N, nv)) -> (N,).
+TaskReward = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+
+@dataclass
+class EnvBundle:
+    """What the trainer, agents and evaluations see of an environment, whichever it is (`fbcpr.envs` builds it)."""
+
+    env: Any                                              # gymnasium VectorEnv, SAME_STEP autoreset
+    library: Any                                          # demonstrations (MotionLibrary-like)
+    obs_dim: int
+    action_dim: int
+    nq: int
+    nv: int
+    make_eval_env: Callable[[int, int], Any]              # (num_envs, max_episode_steps) -> VectorEnv
+    clip_obs: Callable[[int], np.ndarray]                 # clip index -> (T, obs_dim) reference observations
+    clip_start: Callable[[int], tuple[np.ndarray, np.ndarray]]  # clip index -> (qpos, qvel) of frame 0
+    emd: Callable[[np.ndarray, np.ndarray], float]        # tracking EMD between two (T, obs_dim) trajectories
+    success: Callable[[np.ndarray, np.ndarray], bool]     # tracking success (time-aligned)
+    task_reward: Callable[[str], TaskReward]              # registry task name -> reward of (next_obs, qpos, qvel)
+
+
+#: Observations of states: (qpos (N, nq), qvel (N, nv)) -> next_obs (N, obs_dim) float32.
+StateObserver = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @runtime_checkable

@@ -1,9 +1,8 @@
-"""The method registry: what `algorithm:` in a config (and in a checkpoint) names.
+"""The plug-in registry: every method, imitation reward, env kind and offline model the package knows, by name.
 
-A method is a sub-package of `fbcpr` holding its model, losses and agent. The registry maps its name to
-three classes, imported on first use so `import fbcpr.core.config` stays free of torch:
-the `agent:` config section, the `OnlineAgent` the trainer drives, and the `nn.Module` a checkpoint holds.
-Adding a method = a sub-package + one entry here.
+Each entry names where its code lives ("module:attribute") and is imported on first use, so the layers below the
+plug-ins never import them, and `import fbcpr.core.config` stays free of torch. Adding a plug-in = a sub-package
+and one line here.
 """
 from __future__ import annotations
 
@@ -11,28 +10,28 @@ import importlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from fbcpr.core.config import ConfigError
+from fbcpr.core.errors import ConfigError
 
 if TYPE_CHECKING:
     import torch
     from torch import nn
 
-    from fbcpr.core.config import Config, ModelConfig
-    from fbcpr.envs.bundle import EnvBundle
-    from fbcpr.core.protocols import ImitationReward, OnlineAgent
+    from fbcpr.core.protocols import EnvBundle, ImitationReward, OnlineAgent, StateObserver
+    from fbcpr.core.schema import Config, EnvConfig, MethodConfig, ModelConfig
 
 #: What a checkpoint that records no method holds (every checkpoint written before methods existed).
 DEFAULT_ALGORITHM = "fb_cpr"
 
 
-def _load(path: str) -> Any:
+def load(path: str) -> Any:
+    """The attribute a registry entry names ("module:attribute")."""
     module, name = path.split(":")
     return getattr(importlib.import_module(module), name)
 
 
 @dataclass(frozen=True)
 class Method:
-    """Where one method's classes live ("module:Class"), and whether its model is prompt-able (a `BFM`)."""
+    """Where one online method's classes live ("module:Class"), and whether its model is prompt-able (a `BFM`)."""
 
     name: str
     config_path: str
@@ -40,16 +39,16 @@ class Method:
     model_path: str
     promptable: bool
 
-    def agent_config(self) -> type:
-        return _load(self.config_path)
+    def agent_config(self) -> type[MethodConfig]:
+        return load(self.config_path)
 
     def model(self, cfg: ModelConfig) -> nn.Module:
         """A fresh model of this method with the sizes of `cfg` (obs_dim and action_dim set)."""
-        return _load(self.model_path)(cfg)
+        return load(self.model_path)(cfg)
 
-    def agent_class(self) -> type:
+    def agent_class(self) -> type[OnlineAgent]:
         """The agent's class, for what it declares before it exists (the replay fields it trains on: `fields`)."""
-        return _load(self.agent_path)
+        return load(self.agent_path)
 
     def agent(self, cfg: Config, bundle: EnvBundle, device: torch.device, seed: int) -> OnlineAgent:
         """The online agent for a run config on an environment."""
@@ -57,14 +56,48 @@ class Method:
 
 
 METHODS: dict[str, Method] = {m.name: m for m in (
-    Method("fb_cpr", "fbcpr.core.config:AgentConfig", "fbcpr.methods.fb_cpr.agent:FBCPRAgent", "fbcpr.methods.fb_cpr.model:FBCPRModel", True),
-    Method("td3", "fbcpr.methods.td3.config:TD3Config", "fbcpr.methods.td3.agent:TD3Agent", "fbcpr.methods.td3.model:TD3Model", False),
+    Method("fb_cpr", "fbcpr.methods.fb_cpr.config:AgentConfig", "fbcpr.methods.fb_cpr.agent:FBCPRAgent",
+           "fbcpr.methods.fb_cpr.model:FBCPRModel", True),
+    Method("td3", "fbcpr.methods.td3.config:TD3Config", "fbcpr.methods.td3.agent:TD3Agent",
+           "fbcpr.methods.td3.model:TD3Model", False),
 )}
 
-#: Imitation rewards (`fbcpr.core.protocols.ImitationReward`) an RL agent can be trained on, by `reward.imitation` name.
-IMITATION_REWARDS: dict[str, str] = {"amp": "fbcpr.rewards.amp.reward:AMPReward", "near": "fbcpr.rewards.near.reward:NEARReward",
-                                     "virl": "fbcpr.rewards.virl.reward:VIRLReward",
-                                     "progress": "fbcpr.rewards.progress:ProgressReward"}
+#: Imitation rewards (`fbcpr.core.protocols.ImitationReward`) an RL agent can be trained on, by
+#: `agent.reward.imitation` name; each reads the agent config's section of the same name.
+IMITATION_REWARDS: dict[str, str] = {
+    "amp": "fbcpr.rewards.amp.reward:AMPReward",
+    "near": "fbcpr.rewards.near.reward:NEARReward",
+    "virl": "fbcpr.rewards.virl.reward:VIRLReward",
+    "progress": "fbcpr.rewards.progress:ProgressReward",
+}
+
+
+@dataclass(frozen=True)
+class EnvKind:
+    """An environment the trainer can run (`env.name`): its factory, (EnvConfig, num_envs, threads) -> EnvBundle,
+    and its observation as a function of the state (reward samples stored as states only are rebuilt with it)."""
+
+    make_path: str
+    observer_path: str
+
+    def make(self, cfg: EnvConfig, num_envs: int, threads: int | None) -> EnvBundle:
+        return load(self.make_path)(cfg, num_envs, threads)
+
+    def observer(self) -> StateObserver:
+        return load(self.observer_path)()
+
+
+ENVS: dict[str, EnvKind] = {
+    "humanoid": EnvKind("fbcpr.envs.bundle:humanoid_bundle", "fbcpr.envs.bundle:humanoid_observer"),
+    "toy": EnvKind("fbcpr.envs.toy:toy_bundle", "fbcpr.envs.toy:state_observer"),
+}
+
+#: `env.npmp`: (EnvBundle, EnvConfig) -> the bundle acting through an NPMP's latent space.
+LATENT_ACTIONS = "fbcpr.apps.npmp.reuse:latent_bundle"
+
+#: Offline models a checkpoint's manifest can record (`algorithm:`), each loaded as an evaluation agent by
+#: (path, device, name) -> Agent: they track clips and are scored like a BFM, but are no online method.
+OFFLINE_MODELS: dict[str, str] = {"npmp": "fbcpr.apps.npmp.agent:NPMPAgent"}
 
 
 def get_method(name: str) -> Method:
@@ -72,6 +105,13 @@ def get_method(name: str) -> Method:
     if name not in METHODS:
         raise ConfigError(f"algorithm: unknown method {name!r}; choose from {sorted(METHODS)}")
     return METHODS[name]
+
+
+def env_kind(name: str) -> EnvKind:
+    """The registered env `name`; ConfigError naming `env.name` otherwise."""
+    if name not in ENVS:
+        raise ConfigError(f"env.name: must be one of {sorted(ENVS)}, got {name!r}")
+    return ENVS[name]
 
 
 def imitation_reward(name: str, obs_dim: int, agent_cfg: Any, device: torch.device, seed: int,
@@ -82,4 +122,4 @@ def imitation_reward(name: str, obs_dim: int, agent_cfg: Any, device: torch.devi
     if name not in IMITATION_REWARDS:
         raise ConfigError(f"agent.reward.imitation: unknown imitation reward {name!r}; choose from "
                           f"{sorted(IMITATION_REWARDS)}")
-    return _load(IMITATION_REWARDS[name])(obs_dim, getattr(agent_cfg, name), device, seed, library=library)
+    return load(IMITATION_REWARDS[name])(obs_dim, getattr(agent_cfg, name), device, seed, library=library)

@@ -17,6 +17,9 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.protocols import EnvBundle, TaskReward
+from fbcpr.core.schema import EnvConfig
 from motions.library import priorities_from_emd
 
 OBS_DIM, ACTION_DIM, NQ, NV = 2, 2, 2, 2
@@ -185,3 +188,43 @@ class DemoLibrary:
         m = self._pick(rng, n)
         obs = self._obs[self.offsets[m] + (rng.random(n) * self.lengths[m]).astype(int)].astype(np.float64)
         return obs, np.zeros((n, NV))
+
+
+def state_observer() -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """The toy's observation of a state (its position): reward samples stored as states are rebuilt with it."""
+    return observe
+
+
+def toy_bundle(cfg: EnvConfig, num_envs: int, threads: int | None = None) -> EnvBundle:
+    """The point mass with its demonstrations (`env.name: toy`); `threads` is unused (it steps in numpy)."""
+
+    def task_reward(name: str) -> TaskReward:
+        try:
+            fn = get_task(name)
+        except KeyError as err:
+            raise ConfigError(f"agent.reward.task: {err.args[0]}") from None
+        return lambda next_obs, qpos, qvel: fn(next_obs)
+
+    demos = demo_paths()
+    names = list(demos) if cfg.motions == "synthetic" else [n.strip() for n in cfg.motions.split(",")]
+    unknown = [n for n in names if n not in demos]
+    if unknown:
+        raise ConfigError(f"env.motions: unknown toy demonstration {unknown[0]!r}; give 'synthetic' (all) or "
+                          f"comma-separated names of {sorted(demos)}")
+    lib = DemoLibrary({n: demos[n] for n in names})
+    init = MixtureInit(cfg.fall_prob, lib)
+
+    def pos_err(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(a[:, :2] - b[:, :2], axis=-1)
+
+    return EnvBundle(
+        env=PointMassVectorEnv(num_envs, init=init, max_episode_steps=cfg.max_episode_steps),
+        library=lib, obs_dim=OBS_DIM, action_dim=ACTION_DIM, nq=NQ, nv=NV,
+        make_eval_env=lambda n, steps: PointMassVectorEnv(n, max_episode_steps=steps),
+        clip_obs=lambda i: lib.clips[i],
+        clip_start=lambda i: (lib.clips[i][0].astype(np.float64), np.zeros(NV)),
+        # mean position error in units of 0.1, so the paper's EMD bins [0.5, 5] span 0.05-0.5 of the arena
+        emd=lambda a, b: float(10.0 * pos_err(a, b).mean()),
+        success=lambda a, b: bool((pos_err(a, b) <= 0.1).all()),
+        task_reward=task_reward,
+    )

@@ -10,7 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-#: Per-clip imitation metrics (`fbcpr.eval.metrics.imitation_scores`) averaged into the tracking summary.
+#: Per-clip imitation metrics (`fbcpr.metrics.imitation_scores`) averaged into the tracking summary.
 IMITATION_KEYS = ("dtw", "sparc", "sparc_expert")
 
 

@@ -17,8 +17,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from fbcpr.core.checkpoint import CheckpointError
 from fbcpr.core.errors import InputError
 from fbcpr.eval.agents import Agent, SingleTaskAgent, action_mapping
-from fbcpr.inference.prompt import PromptError
-from fbcpr.eval.metrics import d_smpl, emd, goal_proximity, goal_success, imitation_scores, tracking_success
+from fbcpr.core.errors import PromptError
+from fbcpr.metrics import d_smpl, emd, goal_proximity, goal_success, imitation_scores, tracking_success
 from humanoid_env.observation import OBS_DIM
 
 SUITES = ("reward", "goal", "tracking")

@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from fbcpr.envs.bundle import tracking_latents
-from fbcpr.eval.metrics import dtw_pose_error, sparc, speed_profile
+from fbcpr.eval.tracking import tracking_latents
+from fbcpr.metrics import dtw_pose_error, sparc, speed_profile
 from fbcpr.nn.latents import TEMPERATURE, reward_weights
 from fbcpr.nn.networks import project_sphere
 from fbcpr.envs import toy as pm

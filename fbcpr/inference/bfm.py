@@ -32,8 +32,10 @@ from fbcpr.core.checkpoint import (
     pointed_checkpoint,
     save_checkpoint,
 )
-from fbcpr.core.config import AgentConfig, Config, ModelConfig, config_to_dict, env_of, portable_config
-from fbcpr.envs.bundle import inconsistent_rows
+from fbcpr.core.config import portable_config
+from fbcpr.core.schema import Config, ModelConfig, config_to_dict, env_of
+from fbcpr.methods.fb_cpr.config import AgentConfig
+from fbcpr.core.checkpoint import inconsistent_rows
 from fbcpr.core.errors import InputError
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 from fbcpr.inference.prompt import Prompt

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Union, get_args
+from typing import TYPE_CHECKING, Literal, Protocol, Union, get_args
 
 import numpy as np
 import torch
@@ -29,7 +29,6 @@ from fbcpr.core.errors import FBCPRError
 from fbcpr.nn.latents import TEMPERATURE, reward_weights, tracking_sums
 
 if TYPE_CHECKING:
-    from fbcpr.inference.bfm import BFM
     from motions.clip import Clip
 
 #: A reward given by registry name (e.g. "jump-2", "move-ego-0-2*crouch-0") or as a RewardFn-like callable.
@@ -47,14 +46,34 @@ GOAL_METHODS: tuple[str, ...] = get_args(GoalMethod)
 GOAL_REWARD_SCALE = 2.0
 
 
-class PromptError(FBCPRError, ValueError):
-    """A prompt that cannot be turned into a z (unknown task, wrong shape, empty buffer, ...)."""
+class StoredPrompts(Protocol):
+    """z's a checkpoint stores by task name (`fbcpr.inference.reward_prompts.RewardPrompts`)."""
+
+    z: dict[str, np.ndarray]
+
+
+class PromptableModel(Protocol):
+    """What prompting reads of a model (a `BFM`): its sizes, B, the projection and its reward-inference data."""
+
+    model: torch.nn.Module
+    source: str
+    obs_dim: int
+    z_dim: int
+    sequence_length: int
+    reward_buffer: dict[str, np.ndarray] | None
+    reward_prompts: StoredPrompts | None
+
+    def reward_samples(self, n: int, seed: int = 0) -> tuple[dict[str, np.ndarray], torch.Tensor]: ...
+
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: bool = False) -> np.ndarray | torch.Tensor: ...
+
+    def project_z(self, z: np.ndarray | torch.Tensor) -> np.ndarray: ...
 
 
 class Prompt:
     """Latent-z inference for one model (B over its reward-inference buffer is cached by the model)."""
 
-    def __init__(self, bfm: "BFM") -> None:
+    def __init__(self, bfm: PromptableModel) -> None:
         self.bfm = bfm
 
     # ----------------------------------------------------------------------------------------- rewards
@@ -179,7 +198,7 @@ def regress_reward(fn: Callable[..., np.ndarray], label: str, samples: dict[str,
 
 def goal_reward(goal_obs: np.ndarray, scale: float = GOAL_REWARD_SCALE) -> Callable[..., np.ndarray]:
     """r(s') = exp(-d_smpl(s', g) / scale): 1 at the goal pose, and it falls off with the goal metric's distance."""
-    from fbcpr.eval.metrics import d_smpl
+    from fbcpr.metrics import d_smpl
 
     def goal_proximity_reward(next_obs: np.ndarray, *_: object) -> np.ndarray:
         return np.exp(-d_smpl(next_obs, goal_obs) / scale)

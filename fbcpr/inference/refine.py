@@ -23,7 +23,8 @@ import numpy as np
 import torch
 
 from fbcpr.nn.networks import project_sphere
-from fbcpr.inference.prompt import PromptError, RewardSpec, reward_fn
+from fbcpr.core.errors import PromptError
+from fbcpr.inference.prompt import RewardSpec, reward_fn
 
 #: The most envs one generation may step at once (population x starts): ~0.1 MB of simulation state each.
 MAX_ENVS = 4096
@@ -186,7 +187,7 @@ def reward_objective(task: RewardSpec) -> Objective:
 
 def goal_objective(goal: np.ndarray) -> Objective:
     """exp(-d_smpl(s, g) / β) for a goal observation g: 0.37 at the success threshold, 1 at the pose."""
-    from fbcpr.eval.metrics import GOAL_BETA, d_smpl
+    from fbcpr.metrics import GOAL_BETA, d_smpl
 
     goal = np.asarray(goal, dtype=np.float64)
 

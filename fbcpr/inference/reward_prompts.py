@@ -18,17 +18,16 @@ import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
 
 from fbcpr.core.checkpoint import PROMPTS_FILE, CheckpointError
-from fbcpr.core.errors import InputError
+from fbcpr.core.errors import InputError, PromptError
+from fbcpr.inference.prompt import PromptableModel, regress_reward, reward_fn
 from fbcpr.nn.latents import TEMPERATURE
 
-if TYPE_CHECKING:
-    from fbcpr.inference.bfm import BFM
 
 #: The inference method stored prompts were made with: `Prompt.reward`'s default.
 METHOD = "weighted"
@@ -65,13 +64,12 @@ def weights_digest(model: torch.nn.Module) -> str:
     return h.hexdigest()
 
 
-def infer_reward_prompts(bfm: "BFM", tasks: Sequence[str]) -> RewardPrompts:
+def infer_reward_prompts(bfm: PromptableModel, tasks: Sequence[str]) -> RewardPrompts:
     """z for each named task, regressed on all of the model's reward-inference states (no subsample).
 
     A task these states cannot prompt (it pays nothing on any of them) is left out: its prompt is then inferred
     from the checkpoint's states when asked, and fails there with the reason. Raises PromptError for an unknown
     task name, InputError for more than MAX_STATES states, and CheckpointError for a model without reward states."""
-    from fbcpr.inference.prompt import PromptError, regress_reward, reward_fn  # fbcpr.inference.prompt imports this module
 
     buf = bfm.reward_buffer
     if buf is None:
@@ -94,7 +92,6 @@ def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], 
                         where: Path) -> RewardPrompts:
     """Check stored prompts against the model they were loaded with; CheckpointError naming `where` and the
     problem (other weights, other settings, a wrong shape, NaN, or a name the task registry does not know)."""
-    from fbcpr.inference.prompt import PromptError, reward_fn
 
     file = where / PROMPTS_FILE
     if meta.get("method") != METHOD or meta.get("temperature") != TEMPERATURE:

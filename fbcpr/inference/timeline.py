@@ -14,7 +14,8 @@ from typing import Literal, Union
 
 import numpy as np
 
-from fbcpr.inference.prompt import Prompt, PromptError, builtin_clip_names
+from fbcpr.core.errors import PromptError
+from fbcpr.inference.prompt import Prompt, builtin_clip_names
 from humanoid_env.model import CONTROL_HZ
 
 Kind = Literal["reward", "goal", "clip", "z"]

@@ -40,7 +40,7 @@ import torch.distributed as dist
 from torch import Tensor
 from torch.optim.optimizer import register_optimizer_step_pre_hook
 
-from fbcpr.core.config import ConfigError
+from fbcpr.core.errors import ConfigError
 
 #: The replica group whose `synchronized()` block is running (hooks and normalisers consult it); None outside.
 _ACTIVE: "Replicas | None" = None

@@ -17,7 +17,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from fbcpr.core.config import POSITIVE, ConfigError, _f
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import POSITIVE, _f
 from humanoid_env.observation import POSE
 
 #: At most this many demonstration frames: each reward call compares every state with every frame.

@@ -53,10 +53,14 @@ from fbcpr.core.checkpoint import (
     write_pointer,
 )
 from fbcpr.nn import distributed
-from fbcpr.core.config import Config, ConfigError, TrainConfig
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import Config, TrainConfig
 from fbcpr.train.device_batches import DeviceBatches
-from fbcpr.envs.bundle import EnvBundle, inconsistent_rows, make_env, tracking_scores
-from fbcpr.eval.metrics import EMDUnavailable
+from fbcpr.core.checkpoint import inconsistent_rows
+from fbcpr.core.protocols import EnvBundle
+from fbcpr.envs.bundle import make_env
+from fbcpr.eval.tracking import tracking_scores
+from fbcpr.metrics import EMDUnavailable
 from fbcpr.core.registry import get_method
 from fbcpr.core.protocols import OnlineAgent
 
@@ -474,7 +478,7 @@ class Trainer:
         """The policy as it is now, prompted like a checkpoint would be (a BFM through the reward-inference
         sample; a single-task agent acts on its own), on the same starts at every evaluation:
         `train.eval_upright` (the stand prompt) and `train.eval_tasks` (returns, goal success)."""
-        from fbcpr.eval.agents import live_agent
+        from fbcpr.inference.agents import live_agent
         from fbcpr.eval.runner import EPISODE_STEPS, evaluate
         from fbcpr.eval.upright import upright_medians
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fbcpr.eval.agents import make_agent
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.upright import STAND_PROMPT, action_mapping
 from humanoid_env.errors import EnvError
 from planner import PlannedMotion, PlannerConfig, TrackingPlanner

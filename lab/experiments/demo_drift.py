@@ -15,7 +15,7 @@ import argparse
 
 import numpy as np
 
-from fbcpr.eval.agents import make_agent
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.upright import CONTROL_HZ, got_up, pelvis_heights
 from humanoid_env.inits import FixedStates
 from humanoid_env.vector import VectorHumanoidEnv

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from fbcpr.core.checkpoint import CheckpointError, load_checkpoint
-from fbcpr.core.config import Config
+from fbcpr.core.schema import Config
 from fbcpr.train.trainer import Trainer
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from rich.progress import Progress
 
-from fbcpr.eval.agents import make_agent
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.runner import EPISODE_STEPS
 from fbcpr.eval.upright import STAND_PROMPT, STANDING, action_mapping, got_up, pelvis_heights
 from humanoid_env.env import HumanoidEnv

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from fbcpr.eval.agents import make_agent
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.report import json_safe
 from fbcpr.eval.runner import EPISODE_STEPS, TEST_FALL_PROB, evaluate
 from fbcpr.inference.prompt import GOAL_METHODS

@@ -27,9 +27,11 @@ import numpy as np
 import torch
 
 from fbcpr.cli.imitate_cmd import imitation_config
-from fbcpr.envs.bundle import EnvBundle, make_env
-from fbcpr.eval.agents import RandomAgent, make_agent
-from fbcpr.eval.metrics import imitation_scores
+from fbcpr.core.protocols import EnvBundle
+from fbcpr.envs.bundle import make_env
+from fbcpr.eval.agents import RandomAgent
+from fbcpr.inference.agents import make_agent
+from fbcpr.metrics import imitation_scores
 from fbcpr.eval.upright import seconds_upright
 from fbcpr.train.trainer import Trainer
 

@@ -24,7 +24,8 @@ import torch
 
 import yaml
 
-from fbcpr.core.config import Config, config_from_dict
+from fbcpr.core.config import config_from_dict
+from fbcpr.core.schema import Config
 from fbcpr.eval.toy import imitation_metrics, task_return
 from fbcpr.train.trainer import Trainer
 

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from fbcpr.inference.bfm import BFM
-from fbcpr.eval.agents import load_tracker
+from fbcpr.inference.agents import load_tracker
 from fbcpr.eval.runner import tracking_suite
 from fbcpr.apps.npmp.data import collect
 from fbcpr.apps.npmp.latent_opt import optimise_latents

@@ -14,7 +14,7 @@ import argparse
 
 import numpy as np
 
-from fbcpr.eval.agents import make_agent
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.runner import EPISODE_STEPS
 from fbcpr.eval.upright import got_up, pelvis_heights
 from humanoid_env.inits import FixedStates

@@ -26,7 +26,7 @@ from typing import Any
 
 import torch
 
-from fbcpr.eval.agents import make_agent
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.report import json_safe
 from fbcpr.eval.runner import EPISODE_STEPS, evaluate
 from fbcpr.eval.upright import upright

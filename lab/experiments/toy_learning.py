@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fbcpr.core.config import Config, load_config
+from fbcpr.core.config import load_config
+from fbcpr.core.schema import Config
 from fbcpr.eval.toy import evaluate
 from fbcpr.train.trainer import Trainer
 

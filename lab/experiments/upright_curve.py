@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from fbcpr.core.checkpoint import list_checkpoints, read_trainer_meta
-from fbcpr.eval.agents import make_agent
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.runner import EPISODE_STEPS
 from fbcpr.eval.upright import pelvis_heights, seconds_upright
 from humanoid_env.model import CONTROL_HZ

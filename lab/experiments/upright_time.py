@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from fbcpr.eval.agents import make_agent
+from fbcpr.inference.agents import make_agent
 from fbcpr.eval.runner import EPISODE_STEPS
 from fbcpr.eval.upright import STAND_PROMPT, fall_starts_got_up, pelvis_heights, seconds_upright, upright
 from humanoid_env.model import CONTROL_HZ

@@ -16,35 +16,11 @@ import numpy as np
 
 from motions.clip import FPS, Clip, ClipFormatError, from_qpos, load_clip, save_clip
 from motions.kinematics import repeat_loop
-from motions.limits import check_input_file
+from motions.formats import FORMATS, UnknownFormatError, detect_format
 from motions.retarget import Retargeter, RetargetReport
 
-FORMATS = ("amass", "deepmimic", "bvh")
 #: Bump when a converter's output changes, so cached conversions are not reused.
 CONVERTER_VERSION = "2"
-
-
-class UnknownFormatError(ValueError):
-    """The file is none of the supported motion formats."""
-
-
-def detect_format(path: str | os.PathLike) -> str:
-    """'amass', 'deepmimic' or 'bvh', judged from the file's first bytes (not its name)."""
-    path = Path(path)
-    check_input_file(path, UnknownFormatError)
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(512)
-    except OSError as err:
-        raise UnknownFormatError(f"{path}: cannot read ({err.strerror})") from None
-    if head.startswith(b"PK"):
-        return "amass"
-    text = head.lstrip(b"\xef\xbb\xbf").lstrip()
-    if text.startswith(b"HIERARCHY"):
-        return "bvh"
-    if text.startswith(b"{"):
-        return "deepmimic"
-    raise UnknownFormatError(f"{path}: not a supported motion file (expected AMASS .npz, DeepMimic JSON or BVH)")
 
 
 def cache_dir() -> Path:

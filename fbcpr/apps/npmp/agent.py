@@ -11,7 +11,8 @@ import torch
 
 from fbcpr.core.errors import InputError
 from fbcpr.apps.npmp.checkpoint import load_npmp
-from fbcpr.inference.prompt import PromptError, motion_observations
+from fbcpr.core.errors import PromptError
+from fbcpr.inference.prompt import motion_observations
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING
 
 

@@ -24,7 +24,8 @@ from fbcpr.core.checkpoint import (
     verify,
     write_tensors,
 )
-from fbcpr.core.config import ConfigError, config_to_dict
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import config_to_dict
 from fbcpr.apps.npmp.config import npmp_config
 from fbcpr.apps.npmp.model import NPMPModel
 

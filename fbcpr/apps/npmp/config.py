@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from fbcpr.core.config import POSITIVE, ConfigError, _build, _check, _f, _range
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import POSITIVE, _build, _check, _f, _range
 
 
 @dataclass

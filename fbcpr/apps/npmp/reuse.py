@@ -23,8 +23,9 @@ from gymnasium.vector import VectorEnv, VectorWrapper
 from gymnasium.vector.utils import batch_space
 
 from fbcpr.core.checkpoint import CheckpointError
-from fbcpr.core.config import ConfigError, EnvConfig
-from fbcpr.envs.bundle import EnvBundle, TaskReward
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import EnvConfig
+from fbcpr.core.protocols import EnvBundle, TaskReward
 from fbcpr.core.errors import InputError
 from fbcpr.apps.npmp.checkpoint import load_npmp
 from fbcpr.apps.npmp.model import NPMPModel, prior_params

@@ -23,9 +23,11 @@ import torch
 from torch import Tensor, nn
 
 from fbcpr.nn import distributed
-from fbcpr.core.config import AgentConfig, Config, ConfigError, ModelConfig
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import Config, ModelConfig
+from fbcpr.methods.fb_cpr.config import AgentConfig
 from fbcpr.nn.cuda_graph import GraphedStep, make_capturable
-from fbcpr.envs.bundle import TaskReward
+from fbcpr.core.protocols import TaskReward
 from fbcpr.methods.fb_cpr import losses
 from fbcpr.methods.fb_cpr.anchor import ActorAnchor, reward_prompts
 from fbcpr.methods.fb_cpr.imitation import discriminator_terms, encode_windows

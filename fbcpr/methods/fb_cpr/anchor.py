@@ -18,8 +18,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from fbcpr.core.config import ConfigError
-from fbcpr.envs.bundle import TaskReward
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.protocols import TaskReward
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 from fbcpr.nn.latents import reward_weights
 from fbcpr.nn.networks import project_sphere

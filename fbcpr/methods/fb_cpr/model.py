@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from fbcpr.core.config import ModelConfig
+from fbcpr.core.schema import ModelConfig
 from fbcpr.core.errors import InputError
 from fbcpr.nn.networks import BackwardNet, Discriminator, ZConditionedNet, noisy_action, project_sphere
 from fbcpr.nn.normalizer import RunningNormalizer

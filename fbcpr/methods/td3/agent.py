@@ -14,9 +14,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from fbcpr.core.config import Config, ModelConfig
+from fbcpr.core.schema import Config, ModelConfig
 from fbcpr.nn.ensemble_td import action_penalty, behaviour_cloning, pessimistic, td_loss
-from fbcpr.envs.bundle import TaskReward
+from fbcpr.core.protocols import TaskReward
 from fbcpr.nn.lazy_metrics import LazyMetrics
 from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.nn.precision import resolve_bf16

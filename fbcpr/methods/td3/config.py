@@ -4,7 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from fbcpr.rewards.amp.config import AMPConfig
-from fbcpr.core.config import NON_NEGATIVE, POSITIVE, ConfigError, _check, _f
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import NON_NEGATIVE, POSITIVE, Config, MethodConfig, _check, _f, check_windows
 from fbcpr.rewards.near.config import NEARConfig
 from fbcpr.rewards.progress import ProgressConfig
 from fbcpr.rewards.virl.config import VIRLConfig
@@ -28,7 +29,7 @@ class RewardConfig:
 
 
 @dataclass
-class TD3Config:
+class TD3Config(MethodConfig):
     """TD3 hyperparameters (Table 8): critic and actor rates, Polyak tau, ensemble penalties (0: the mean)."""
 
     batch_size: int = _f(1024, _check(lambda v: v >= 2, "must be >= 2"))
@@ -55,3 +56,16 @@ class TD3Config:
     near: NEARConfig = field(default_factory=NEARConfig)
     virl: VIRLConfig = field(default_factory=VIRLConfig)
     progress: ProgressConfig = field(default_factory=ProgressConfig)
+
+    def validate_run(self, run: Config) -> None:
+        check_windows(self.batch_size, self.seq_length)
+        share = run.train.demonstration_share
+        if self.bc_weight and not share:
+            raise ConfigError("agent.bc_weight: clones the demonstrations' actions, so it needs "
+                              "train.demonstration_share > 0")
+        if self.bootstrap_demo_actions and not share:
+            raise ConfigError("agent.bootstrap_demo_actions: reads the demonstrations' next actions, so it needs "
+                              "train.demonstration_share > 0")
+        if run.env.npmp is not None and self.reward.imitation:
+            raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
+                              "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")

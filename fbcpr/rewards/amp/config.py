@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fbcpr.core.config import NON_NEGATIVE, POSITIVE, _f
+from fbcpr.core.schema import NON_NEGATIVE, POSITIVE, _f
 
 
 @dataclass

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fbcpr.core.config import POSITIVE, ConfigError, _check, _f
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import POSITIVE, _check, _f
 
 _INT_AT_LEAST_2 = _check(lambda v: v >= 2, "must be >= 2")
 

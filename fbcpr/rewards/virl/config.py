@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fbcpr.core.config import NON_NEGATIVE, POSITIVE, ConfigError, _check, _f
+from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import NON_NEGATIVE, POSITIVE, _check, _f
 
 INPUTS = ("state", "video")
 

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from fbcpr.core.config import ConfigError
+from fbcpr.core.errors import ConfigError
 from fbcpr.nn.normalizer import RunningNormalizer
 from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.rewards.virl.config import VIRLConfig
