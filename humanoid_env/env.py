@@ -7,7 +7,8 @@ ends the episode with the last good observation and `info["diverged"] = True`; n
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import gymnasium as gym
 import mujoco

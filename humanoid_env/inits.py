@@ -6,7 +6,8 @@ fall_prob = 0.2 on top of MoCap).
 """
 from __future__ import annotations
 
-from typing import Protocol, Sequence
+from collections.abc import Sequence
+from typing import Protocol
 
 import mujoco
 import numpy as np

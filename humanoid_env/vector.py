@@ -18,6 +18,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from mujoco import batch as mjbatch
 
+from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap, check_action
 from humanoid_env.env import (
     DEFAULT_EPISODE_STEPS,
     DIVERGENCE_WARNINGS,
@@ -31,7 +32,6 @@ from humanoid_env.env import (
     check_state,
     resolve_reward,
 )
-from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap, check_action
 from humanoid_env.errors import EnvError, InvalidStateError
 from humanoid_env.model import N_SUBSTEPS, NU, load_model
 from humanoid_env.observation import N_BODIES, OBS_DIM, assemble

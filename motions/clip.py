@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from humanoid_env.model import NQ, NV, CONTROL_HZ
+from humanoid_env.model import CONTROL_HZ, NQ, NV
 from humanoid_env.observation import OBS_DIM
 from motions.limits import max_clip_frames, too_long
 from motions.npz import read_npz

@@ -55,7 +55,7 @@ class MotionLibrary:
         self.priorities = np.ones(len(clips))
 
     @classmethod
-    def load(cls, source: str | os.PathLike | Iterable[str | os.PathLike]) -> "MotionLibrary":
+    def load(cls, source: str | os.PathLike | Iterable[str | os.PathLike]) -> MotionLibrary:
         """From a folder of clip `.npz` files (sorted by file name; a demonstration folder's actions files are
         skipped, so its motions serve as clips too) or an explicit list of files."""
         if isinstance(source, (str, os.PathLike)):
@@ -82,7 +82,7 @@ class MotionLibrary:
     def total_seconds(self) -> float:
         return float(sum(c.seconds for c in self.clips))
 
-    def split(self, test_fraction: float = 0.1) -> tuple["MotionLibrary", "MotionLibrary | None"]:
+    def split(self, test_fraction: float = 0.1) -> tuple[MotionLibrary, MotionLibrary | None]:
         """Deterministic (train, test) split by name hash; test is None when no clip falls into it."""
         is_test = [split_name(n, test_fraction) for n in self.names]
         train = [c for c, t in zip(self.clips, is_test) if not t]

@@ -162,7 +162,7 @@ def default_clips() -> list[Clip]:
     return [stand(), tpose(), arm_raise(), squat(), walk(), turn()]
 
 
-def default_library() -> "MotionLibrary":
+def default_library() -> MotionLibrary:
     """MotionLibrary over the built-in clips: the quickstart default when no motion folder is given."""
     from motions.library import MotionLibrary
 

@@ -13,7 +13,7 @@ from fbcpr.eval.toy import imitation_metrics
 from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "fbcpr" / "configs"
 
 
 def test_window_transitions_are_the_consecutive_pairs():

@@ -7,7 +7,7 @@ from fbcpr.core.config import config_from_dict, load_config
 from fbcpr.core.errors import ConfigError
 from fbcpr.core.schema import PRESETS, dump_config
 
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "fbcpr" / "configs"
 
 
 @pytest.mark.parametrize("data, key", [

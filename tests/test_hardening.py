@@ -390,7 +390,8 @@ def test_buffer_drops_and_counts_non_finite_rows():
 
 def test_states_only_reward_samples_that_cannot_be_rebuilt_are_named(tmp_path, monkeypatch):
     from conftest import humanoid_states
-    from fbcpr import BFM, checkpoint
+    from fbcpr import BFM
+    from fbcpr.core import checkpoint
     from fbcpr.core.config import config_from_dict
     from fbcpr.methods.fb_cpr.model import FBCPRModel
 

@@ -17,7 +17,7 @@ from fbcpr.envs import toy as pm
 from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "fbcpr" / "configs"
 TINY = dict(hidden_dim=32, hidden_layers=2, lr=3e-3, ema=0.9, sigma_max=1.0, pretrain_steps=300, dataset_size=2000)
 
 

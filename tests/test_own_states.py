@@ -11,7 +11,7 @@ from fbcpr.core.config import load_config
 from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "fbcpr" / "configs"
 
 
 def toy(**train):

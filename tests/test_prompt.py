@@ -230,7 +230,7 @@ def test_prompts_steer_a_trained_toy_model(tmp_path):
     from fbcpr.envs import toy as pm
     from fbcpr.train.trainer import Trainer
 
-    cfg = load_config(Path(__file__).parents[1] / "configs" / "toy.yaml")
+    cfg = load_config(Path(__file__).parents[1] / "fbcpr" / "configs" / "toy.yaml")
     cfg.train.total_env_steps = 15_000
     Trainer(cfg, tmp_path / "toy", progress=False).run()
     toy = BFM.load(tmp_path / "toy")

@@ -16,7 +16,7 @@ from fbcpr.eval.toy import task_return
 from fbcpr.train.trainer import Trainer
 
 torch.set_num_threads(1)
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "fbcpr" / "configs"
 
 
 def tiny_cfg(reward=None, **train):

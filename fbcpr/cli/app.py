@@ -3,8 +3,19 @@ from __future__ import annotations
 
 import typer
 
-from fbcpr.cli import (common, demo_cmd, env_cmd, eval_cmd, export_cmd, imitate_cmd, motions_cmd, npmp_cmd, prompt_cmd,
-                       tasks_cmd, train_cmd)
+from fbcpr.cli import (
+    common,
+    demo_cmd,
+    env_cmd,
+    eval_cmd,
+    export_cmd,
+    imitate_cmd,
+    motions_cmd,
+    npmp_cmd,
+    prompt_cmd,
+    tasks_cmd,
+    train_cmd,
+)
 
 app = typer.Typer(help="FB-CPR behavioral foundation model for the SMPL humanoid.", no_args_is_help=True,
                   cls=common.HelpGroup)

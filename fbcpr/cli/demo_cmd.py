@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 import typer
@@ -25,7 +25,7 @@ PRETRAINED_NOTE = ("FB-CPR, small networks, trained on 2 CPU cores, then continu
                    "averaged, on the DeepMimic clips and our synthetic clips")
 
 
-def find_config(path: Optional[Path]) -> Path:
+def find_config(path: Path | None) -> Path:
     """The given config (a file or a shipped config's name), else the shipped quickstart config."""
     from fbcpr.core.config import find_config as find
 
@@ -54,9 +54,9 @@ def score_rows(results: dict[str, Any], reward: str, goal: str, clip: str) -> li
 def demo_command(
     train: bool = typer.Option(False, "--train", help="Train a model from scratch first instead of prompting the "
                                "shipped pretrained one (--config, --minutes, --steps, --device apply)."),
-    config: Optional[Path] = typer.Option(None, "--config", help="Run config (default: the shipped fbcpr/configs/quickstart.yaml)."),
+    config: Path | None = typer.Option(None, "--config", help="Run config (default: the shipped fbcpr/configs/quickstart.yaml)."),
     minutes: float = typer.Option(5.0, "--minutes", min=0.05, help="Training time budget."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Train exactly this many env steps instead."),
+    steps: int | None = typer.Option(None, "--steps", min=1, help="Train exactly this many env steps instead."),
     out: Path = typer.Option(Path("runs/demo"), "--out", help="Run directory (checkpoints, videos, summary)."),
     reward: str = typer.Option("move-ego-0-0", "--reward", help="Reward task to prompt."),
     goal: str = typer.Option("t_pose", "--goal", help="Goal pose to prompt."),
@@ -64,12 +64,12 @@ def demo_command(
     episodes: int = typer.Option(4, "--episodes", min=1, help="Evaluation episodes per prompt."),
     eval_steps: int = typer.Option(150, "--eval-steps", min=1, help="Steps per reward/goal evaluation episode."),
     video: bool = typer.Option(True, "--video/--no-video", help="Write videos (skipped without a renderer)."),
-    device: Optional[str] = typer.Option(None, "--device", help="Override train.device (cpu, cuda, auto)."),
+    device: str | None = typer.Option(None, "--device", help="Override train.device (cpu, cuda, auto)."),
 ) -> None:
     """Prompt the pretrained model (or, with --train, a freshly trained one) with a reward, a goal and a clip."""
-    from fbcpr.inference.bfm import PRETRAINED_DIR, BFM
     from fbcpr.eval.agents import RandomAgent, ZeroAgent
     from fbcpr.eval.runner import evaluate
+    from fbcpr.inference.bfm import BFM, PRETRAINED_DIR
     from humanoid_env.tasks import get_reward
     from humanoid_env.tasks.goals import goal_obs
     from motions.synthetic import default_library
@@ -120,11 +120,11 @@ def demo_command(
     console.print(f"summary written to [bold]{out / 'demo_summary.json'}[/]")
 
 
-def _train_model(config: Optional[Path], minutes: float, steps: Optional[int], out: Path,
-                 device: Optional[str]) -> tuple[Any, dict[str, Any]]:
+def _train_model(config: Path | None, minutes: float, steps: int | None, out: Path,
+                 device: str | None) -> tuple[Any, dict[str, Any]]:
     """Train the (quickstart) config for the budget; the loaded model and what the training did."""
-    from fbcpr.inference.bfm import BFM
     from fbcpr.core.config import load_config
+    from fbcpr.inference.bfm import BFM
     from fbcpr.train.trainer import Trainer
 
     cfg_path = find_config(config)

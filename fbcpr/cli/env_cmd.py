@@ -4,7 +4,6 @@ from __future__ import annotations
 import time
 from enum import Enum
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.table import Table
@@ -22,7 +21,7 @@ def rollout_command(
     steps: int = typer.Option(300, "--steps", min=1, help="Control steps (30 Hz) to simulate."),
     policy: Policy = typer.Option(Policy.zero, "--policy", help="zero: every PD target at its range's middle; "
                                   "random: uniform actions in [-1, 1]."),
-    video: Optional[Path] = typer.Option(None, "--video", help="Write an mp4 of the rollout from the tracking camera."),
+    video: Path | None = typer.Option(None, "--video", help="Write an mp4 of the rollout from the tracking camera."),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial state and of the random policy."),
     fall_prob: float = typer.Option(0.0, "--fall-prob", min=0.0, max=1.0, help="Probability of starting from a "
                                     "random fall instead of the standing pose."),

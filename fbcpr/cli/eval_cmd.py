@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from enum import Enum
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -17,7 +16,7 @@ class Suite(str, Enum):
     all = "all"
 
 
-def _load_motions(folder: Optional[Path]):
+def _load_motions(folder: Path | None):
     if folder is not None:
         from motions.library import MotionLibrary
 
@@ -34,12 +33,12 @@ def eval_command(
                                          "agent runs its own task, with imitation metrics when it imitates), or "
                                          "the floor baselines 'random' or 'zero'."),
     suite: Suite = typer.Option(Suite.all, "--suite", help="Which suite to run."),
-    tasks: Optional[list[str]] = typer.Option(None, "--tasks", help="Restrict to these names (reward tasks such as "
+    tasks: list[str] | None = typer.Option(None, "--tasks", help="Restrict to these names (reward tasks such as "
                                               "move-ego-0-2, goal poses such as t_pose, clip names); repeatable, "
                                               "or comma-separated."),
     episodes: int = typer.Option(10, "--episodes", min=1, help="Episodes per reward task and goal pose."),
     steps: int = typer.Option(300, "--steps", min=1, help="Steps per reward/goal episode (paper: 300)."),
-    motions: Optional[Path] = typer.Option(None, "--motions", help="Folder of clip .npz files: tracked clips and "
+    motions: Path | None = typer.Option(None, "--motions", help="Folder of clip .npz files: tracked clips and "
                                            "MoCap test states (default: the built-in synthetic clips)."),
     fall_prob: float = typer.Option(0.5, "--fall-prob", min=0.0, max=1.0, help="Share of Fall states in the test "
                                     "initial distribution."),
@@ -48,9 +47,9 @@ def eval_command(
     seed: int = typer.Option(0, "--seed", help="Seed of the initial states (and of the random baseline)."),
 ) -> None:
     """Evaluate an agent zero-shot on reward tasks, goal poses and motion tracking (paper App. C.3)."""
-    from fbcpr.inference.agents import make_agent
     from fbcpr.eval.report import print_report
     from fbcpr.eval.runner import evaluate
+    from fbcpr.inference.agents import make_agent
 
     if suite == Suite.tracking:
         extra = [f"--{n.replace('_', '-')}" for n in ("episodes", "steps", "fall_prob") if given(ctx, n)]
@@ -65,7 +64,7 @@ def eval_command(
                            fall_prob=fall_prob, seed=seed, agent_name=ckpt)
     except KeyboardInterrupt:
         done = out / "results.json"
-        err_console.print(f"[bold red]interrupted[/]: " + (f"the tasks done so far are in {done}" if done.is_file()
+        err_console.print("[bold red]interrupted[/]: " + (f"the tasks done so far are in {done}" if done.is_file()
                                                             else "no task had finished"), highlight=False)
         raise typer.Exit(130) from None
     print_report(results, console)

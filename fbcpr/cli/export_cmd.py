@@ -37,8 +37,8 @@ def export_command(
                                             "kept (docs/usage.md)."),
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
-    from fbcpr.inference.bfm import BFM
     from fbcpr.core.errors import InputError
+    from fbcpr.inference.bfm import BFM
     from fbcpr.inference.interpolation import interpolate, with_reward_states
     from fbcpr.inference.reward_prompts import infer_reward_prompts
     from humanoid_env.tasks.rewards import TASKS

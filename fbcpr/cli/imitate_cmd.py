@@ -9,7 +9,7 @@ The one front door for the imitation rewards of `fbcpr.core.registry.IMITATION_R
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import typer
 
@@ -21,7 +21,7 @@ class DemoError(ValueError):
     """A DEMO argument that is neither a clip, a folder of frames nor a toy demonstration."""
 
 
-def _base_config(reward: str, kind: str, config: Optional[Path]) -> Any:
+def _base_config(reward: str, kind: str, config: Path | None) -> Any:
     """The run config: --config, else the shipped `<reward>-<kind>` config, else the plain TD3 one of the env."""
     from fbcpr.core.config import find_config, load_config, shipped_configs
 
@@ -32,7 +32,7 @@ def _base_config(reward: str, kind: str, config: Optional[Path]) -> Any:
     return load_config(shipped.get(f"{reward}-{kind}", shipped[fallback]))
 
 
-def imitation_config(demo: str, reward: str, config: Optional[Path] = None) -> tuple[Any, str]:
+def imitation_config(demo: str, reward: str, config: Path | None = None) -> tuple[Any, str]:
     """(Config, env kind) for imitating `demo` with imitation reward `reward`; DemoError / ValueError when bad."""
     from fbcpr.envs.toy import demo_paths
 
@@ -73,9 +73,9 @@ def imitate_command(
                                "demonstration name (circle-ccw, ...)."),
     reward: str = typer.Option(..., "--reward", help=f"Imitation reward: {', '.join(sorted(IMITATION_REWARDS))}."),
     out: Path = typer.Option(..., "--out", help="Run directory (checkpoints, metrics.csv)."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Total env steps (overrides the config's)."),
+    steps: int | None = typer.Option(None, "--steps", min=1, help="Total env steps (overrides the config's)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Training seed."),
-    config: Optional[Path] = typer.Option(None, "--config", help="A TD3 run config to start from instead of the "
+    config: Path | None = typer.Option(None, "--config", help="A TD3 run config to start from instead of the "
                                           "shipped `<reward>-walk` / `<reward>-toy` one."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the live progress bar."),
 ) -> None:

@@ -6,7 +6,6 @@ import os
 import re
 import tempfile
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
@@ -88,7 +87,7 @@ def import_cmd(
     up_axis: str = typer.Option(None, "--up-axis", help="Override the source up axis: y or z (AMASS: z, BVH: y)."),
     loop_seconds: float = typer.Option(0.0, "--loop-seconds", help="Repeat cyclic clips until they last this long."),
     no_cache: bool = typer.Option(False, "--no-cache", help="Ignore the conversion cache (~/.cache/fbcpr)."),
-    joint_map: Optional[Path] = typer.Option(None, "--joint-map", help="BVH: YAML mapping of keypoints to this "
+    joint_map: Path | None = typer.Option(None, "--joint-map", help="BVH: YAML mapping of keypoints to this "
                                              "rig's joint names (l_hip, l_knee, l_ankle, l_toe, neck, head, "
                                              "l_shoulder, l_elbow, l_wrist and r_ ones), for rigs not known here."),
 ) -> None:
@@ -209,9 +208,10 @@ def render_cmd(
     stills: int = typer.Option(6, help="Number of evenly spaced frames in a .png strip."),
 ) -> None:
     """Play a clip back kinematically (no physics) from the tracking camera; write a video or a .png strip."""
+    import mujoco
+
     from humanoid_env.model import load_model  # first: it picks a headless GL backend before mujoco loads
     from humanoid_env.render import TrackRenderer, write_video
-    import mujoco
     from motions.clip import load_clip
 
     clip = load_clip(clip_path)

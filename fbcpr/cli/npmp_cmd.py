@@ -6,7 +6,6 @@ import json
 import time
 from enum import Enum
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.table import Table
@@ -41,9 +40,9 @@ def distill_command(
     preset: Preset = typer.Option(Preset.cpu, "--preset", help="Model size: paper (encoder 2x1024, decoder 3x1024) "
                                   "or cpu (256 wide)."),
     steps: int = typer.Option(2000, "--steps", min=1, help="Total gradient steps of the run (with --resume too)."),
-    latent: Optional[int] = typer.Option(None, "--latent", help="Latent size (default 60)."),
-    beta: Optional[float] = typer.Option(None, "--beta", help="KL weight (default 0.1)."),
-    alpha: Optional[float] = typer.Option(None, "--alpha", help="AR(1) prior coefficient (default 0.95; 0: i.i.d.)."),
+    latent: int | None = typer.Option(None, "--latent", help="Latent size (default 60)."),
+    beta: float | None = typer.Option(None, "--beta", help="KL weight (default 0.1)."),
+    alpha: float | None = typer.Option(None, "--alpha", help="AR(1) prior coefficient (default 0.95; 0: i.i.d.)."),
     rollouts: int = typer.Option(10, "--rollouts", min=1, help="BC: noisy rollouts per clip."),
     noise: float = typer.Option(0.1, "--noise", min=0.0, help="BC: std of the action noise (actions in [-1, 1])."),
     perturb: float = typer.Option(0.1, "--perturb", min=0.0, help="LFPC: perturbation std, as a fraction of each "
@@ -97,8 +96,8 @@ def distill_command(
 
 def _collect(expert: str, motions: Path, method: str, rollouts: int, noise: float, perturb: float, max_steps: int,
              max_mb: float, seed: int):
-    from fbcpr.inference.bfm import BFM
     from fbcpr.apps.npmp.data import collect
+    from fbcpr.inference.bfm import BFM
     from motions.library import MotionLibrary
 
     bfm = BFM.load(expert)
@@ -117,17 +116,17 @@ def _collect(expert: str, motions: Path, method: str, rollouts: int, noise: floa
 def eval_command(
     ckpts: list[str] = typer.Argument(..., help="NPMP run directories or checkpoints (the expert tracks once)."),
     motions: Path = typer.Option(..., "--motions", help="Folder of clip .npz files to track."),
-    expert: Optional[str] = typer.Option(None, "--expert", help="The expert to compare with (default: the BFM the "
+    expert: str | None = typer.Option(None, "--expert", help="The expert to compare with (default: the BFM the "
                                          "NPMPs were distilled from)."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Write results.json here."),
+    out: Path | None = typer.Option(None, "--out", help="Write results.json here."),
 ) -> None:
     """One-shot tracking of every clip by each NPMP and by the expert: EMD, success, and each NPMP relative to the
     expert (EMD_expert / EMD_npmp), on the clips it was distilled on and on held-out ones."""
-    from fbcpr.inference.bfm import BFM
-    from fbcpr.inference.agents import load_tracker
-    from fbcpr.eval.runner import tracking_suite, write_json
     from fbcpr.apps.npmp.agent import NPMPAgent
     from fbcpr.apps.npmp.evaluate import relative_to_expert
+    from fbcpr.eval.runner import tracking_suite, write_json
+    from fbcpr.inference.agents import load_tracker
+    from fbcpr.inference.bfm import BFM
     from motions.library import MotionLibrary
 
     agents = [load_tracker(c) for c in ckpts]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 import typer
@@ -168,15 +168,15 @@ VIDEO_HELP = "Write an .mp4 of the rollout here (needs an OpenGL backend)."
 @cli_errors
 def prompt_command(
     ckpt: str = typer.Argument(..., help=CKPT_HELP),
-    reward: Optional[str] = typer.Option(None, "--reward", help="Reward task, e.g. jump-2 or move-ego-0-2*raisearms-h-h "
+    reward: str | None = typer.Option(None, "--reward", help="Reward task, e.g. jump-2 or move-ego-0-2*raisearms-h-h "
                                          "(`fbcpr tasks` lists them)."),
-    goal: Optional[str] = typer.Option(None, "--goal", help="Goal pose name, e.g. t_pose (`fbcpr tasks` lists them)."),
-    imitate: Optional[str] = typer.Option(None, "--imitate", help="Clip .npz (or built-in clip name, e.g. walk) to "
+    goal: str | None = typer.Option(None, "--goal", help="Goal pose name, e.g. t_pose (`fbcpr tasks` lists them)."),
+    imitate: str | None = typer.Option(None, "--imitate", help="Clip .npz (or built-in clip name, e.g. walk) to "
                                           "imitate with one z (ER_FB)."),
     steps: int = typer.Option(300, "--steps", min=1, help="Episode length in control steps (30 Hz)."),
-    video: Optional[Path] = typer.Option(None, "--video", help=VIDEO_HELP),
+    video: Path | None = typer.Option(None, "--video", help=VIDEO_HELP),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial state."),
-    method: Optional[str] = typer.Option(None, "--method", help="With --reward: reward inference, weighted (paper, "
+    method: str | None = typer.Option(None, "--method", help="With --reward: reward inference, weighted (paper, "
                                          "the default) or regression. With --goal: backward (z = B(g), paper, the "
                                          "default), states (the goal as a reward on visited states) or mix."),
     device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
@@ -186,13 +186,13 @@ def prompt_command(
     refine_starts: int = typer.Option(8, "--refine-starts", min=1, help="Standing starts each candidate z is "
                                       "rolled out from (drawn apart from the --seed start)."),
     refine_population: int = typer.Option(16, "--refine-population", min=2, help="z's rolled out per generation."),
-    save_z: Optional[Path] = typer.Option(None, "--save-z", help="Write the prompt's z here (.npy), e.g. to pass "
+    save_z: Path | None = typer.Option(None, "--save-z", help="Write the prompt's z here (.npy), e.g. to pass "
                                           "to BFM.act."),
 ) -> None:
     """Prompt a model with one reward, goal or clip, roll it out and print return and metrics (`fbcpr tasks` lists
     the reward tasks and goal poses)."""
-    from fbcpr.metrics import d_smpl, emd, goal_proximity, goal_success
     from fbcpr.inference.prompt import goal_observation
+    from fbcpr.metrics import d_smpl, emd, goal_proximity, goal_success
 
     given = [x for x in (reward, goal, imitate) if x is not None]
     if len(given) != 1:
@@ -249,7 +249,7 @@ def track_command(
     ckpt: str = typer.Argument(..., help=CKPT_HELP),
     clip_path: str = typer.Argument(..., help="Clip .npz (or built-in clip name, e.g. walk) to track from its "
                                               "first state."),
-    video: Optional[Path] = typer.Option(None, "--video", help=VIDEO_HELP + " Agent left, reference right."),
+    video: Path | None = typer.Option(None, "--video", help=VIDEO_HELP + " Agent left, reference right."),
     device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
 ) -> None:
     """Track a clip with one z per step and print tracking success (d_smpl <= 0.5 throughout) and EMD.
@@ -281,7 +281,7 @@ def timeline_command(
     ckpt: str = typer.Argument(..., help=CKPT_HELP),
     spec: str = typer.Argument(..., help='Segments "ITEM:SECONDS,..."; ITEM is a reward task, a goal name, a clip '
                                          '.npz or a built-in clip name, e.g. "move-ego-0-2:4,jump-2:2,sitonground:4".'),
-    video: Optional[Path] = typer.Option(None, "--video", help=VIDEO_HELP),
+    video: Path | None = typer.Option(None, "--video", help=VIDEO_HELP),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial state."),
     device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
 ) -> None:
@@ -307,8 +307,8 @@ def timeline_command(
 
 def timeline_table(timeline: Any, ep: Episode) -> Table:
     """Per segment: mean reward (reward tasks), final d_smpl (goals) or EMD (clips) over the steps it ran."""
-    from fbcpr.metrics import d_smpl, emd
     from fbcpr.inference.prompt import goal_observation
+    from fbcpr.metrics import d_smpl, emd
 
     table = Table(title="timeline")
     for col in ("segment", "kind", "seconds", "metric", "value"):

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -13,16 +12,16 @@ from fbcpr.cli.common import cli_errors, console, err_console
 def train_command(
     config: str = typer.Argument(..., help="YAML run config, or the name of a shipped one (quickstart, small, cpu, "
                                  "paper-S, paper-M, toy). Relative paths inside it are read from its folder."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Run directory (default: runs/<config name>)."),
+    out: Path | None = typer.Option(None, "--out", help="Run directory (default: runs/<config name>)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its latest checkpoint."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Total env steps of the run, counted from 0 "
+    steps: int | None = typer.Option(None, "--steps", min=1, help="Total env steps of the run, counted from 0 "
                                         "(overrides train.total_env_steps); with --resume too."),
-    more_steps: Optional[int] = typer.Option(None, "--more-steps", min=1, help="With --resume: train this many env "
+    more_steps: int | None = typer.Option(None, "--more-steps", min=1, help="With --resume: train this many env "
                                              "steps beyond the latest checkpoint."),
-    device: Optional[str] = typer.Option(None, "--device", help="Override train.device (cpu, cuda, auto)."),
+    device: str | None = typer.Option(None, "--device", help="Override train.device (cpu, cuda, auto)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the live progress bar (off: a plain "
                                   "log line every train.log_every env steps)."),
-    init_from: Optional[str] = typer.Option(None, "--init-from", help="Warm-start a new run from the weights of a "
+    init_from: str | None = typer.Option(None, "--init-from", help="Warm-start a new run from the weights of a "
                                             "checkpoint, inference-only ones included ('pretrained': the shipped model)."),
 ) -> None:
     """Train FB-CPR online; Ctrl-C (or SIGTERM, SIGHUP) stops at the next safe point with a final checkpoint.

@@ -36,10 +36,9 @@ from safetensors.torch import load_file, save_file
 
 import fbcpr
 from fbcpr.core.config import config_from_dict, model_config_from_dict
-from fbcpr.core.errors import ConfigError
-from fbcpr.core.schema import Config, ModelConfig, config_to_dict, env_of
-from fbcpr.core.errors import FBCPRError
+from fbcpr.core.errors import ConfigError, FBCPRError
 from fbcpr.core.registry import DEFAULT_ALGORITHM, METHODS, env_kind, get_method
+from fbcpr.core.schema import Config, ModelConfig, config_to_dict, env_of
 from humanoid_env.actions import LEGACY_ACTION_MAPPING
 
 FORMAT = "fbcpr-checkpoint"

@@ -21,14 +21,13 @@ A sequence reward (VIRL) also has an int attribute `history` > 0: the agent then
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import torch
 from torch import Tensor, nn
-
 
 #: A registry reward on next states: (next_obs (N, obs_dim), qpos (N, nq), qvel (N, nv)) -> (N,).
 TaskReward = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]

@@ -11,8 +11,9 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import yaml
 
@@ -42,8 +43,9 @@ def _f(default: Any, check: Callable[[Any], str | None] | None = None, **kw: Any
     return field(default=default, metadata={"check": check}, **kw)
 
 
+@dataclass
 class MethodConfig:
-    """Base of a method's `agent:` section. `validate_run` checks what the section needs of the rest of the run
+    """Base of a method's `agent:` section (config_from_dict puts the named method's own there). `validate_run` checks what the section needs of the rest of the run
     (other sections), after every section was read on its own."""
 
     def validate_run(self, run: Config) -> None:
@@ -278,6 +280,9 @@ def _build(cls: type, data: Any, prefix: str, sections: dict[str, type] | None =
             if problem:
                 raise ConfigError(f"{key}: {problem}, got {value!r}")
         kwargs[name] = coerced
+    for name, tp in (sections or {}).items():
+        if name not in kwargs:
+            kwargs[name] = _build(tp, {}, f"{prefix}.{name}" if prefix else name)
     obj = cls(**kwargs)
     if hasattr(obj, "validate"):
         obj.validate(prefix)

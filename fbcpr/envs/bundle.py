@@ -72,8 +72,8 @@ def _focus_library(cfg: EnvConfig, lib: Any) -> Any:
 def humanoid_bundle(cfg: EnvConfig, num_envs: int, threads: int | None = None) -> EnvBundle:
     """The SMPL humanoid on the clips of `env.motions` (`env.name: humanoid`)."""
     from humanoid_env import NQ, NU, NV, OBS_DIM
-    from humanoid_env.inits import make_init
     from humanoid_env.env import reset_fallen_steps
+    from humanoid_env.inits import make_init
     from humanoid_env.vector import VectorHumanoidEnv
     from motions.library import MotionLibrary
 

@@ -9,7 +9,8 @@ are rewards on the next observation, like the humanoid's reward registry.
 """
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -70,7 +71,7 @@ class UniformInit:
 class MixtureInit:
     """Uniform init with probability fall_prob, demonstration states otherwise."""
 
-    def __init__(self, fall_prob: float, demos: "DemoLibrary | None") -> None:
+    def __init__(self, fall_prob: float, demos: DemoLibrary | None) -> None:
         self.fall_prob, self.demos, self.uniform = (fall_prob if demos is not None else 1.0), demos, UniformInit()
 
     def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -6,7 +6,8 @@ evaluated on its own task. Later baselines plug in by offering the same methods.
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol, runtime_checkable
+from collections.abc import Callable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 

@@ -8,16 +8,16 @@ scoring (reward 0, goal distance infinite, tracking failed) for the rest of its 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from fbcpr.core.checkpoint import CheckpointError
-from fbcpr.core.errors import InputError
+from fbcpr.core.errors import InputError, PromptError
 from fbcpr.eval.agents import Agent, SingleTaskAgent, action_mapping
-from fbcpr.core.errors import PromptError
 from fbcpr.metrics import d_smpl, emd, goal_proximity, goal_success, imitation_scores, tracking_success
 from humanoid_env.observation import OBS_DIM
 

@@ -11,11 +11,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from fbcpr.envs import toy as pm
 from fbcpr.eval.tracking import tracking_latents
 from fbcpr.metrics import dtw_pose_error, sparc, speed_profile
 from fbcpr.nn.latents import TEMPERATURE, reward_weights
 from fbcpr.nn.networks import project_sphere
-from fbcpr.envs import toy as pm
 
 N_STARTS = 10          # episodes per goal / per task
 HORIZON = 100

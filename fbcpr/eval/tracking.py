@@ -2,7 +2,8 @@
 on the bundle's evaluation env, scored by the env's own EMD and success (paper App. C.3)."""
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch

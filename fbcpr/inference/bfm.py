@@ -27,19 +27,19 @@ from fbcpr.core.checkpoint import (
     REWARD_KEYS,
     Checkpoint,
     CheckpointError,
+    inconsistent_rows,
     latest_checkpoint,
     load_checkpoint,
     pointed_checkpoint,
     save_checkpoint,
 )
 from fbcpr.core.config import portable_config
-from fbcpr.core.schema import Config, ModelConfig, config_to_dict, env_of
-from fbcpr.methods.fb_cpr.config import AgentConfig
-from fbcpr.core.checkpoint import inconsistent_rows
 from fbcpr.core.errors import InputError
-from fbcpr.methods.fb_cpr.model import FBCPRModel
+from fbcpr.core.schema import Config, ModelConfig, config_to_dict, env_of
 from fbcpr.inference.prompt import Prompt
 from fbcpr.inference.reward_prompts import RewardPrompts, load_reward_prompts, weights_digest
+from fbcpr.methods.fb_cpr.config import AgentConfig
+from fbcpr.methods.fb_cpr.model import FBCPRModel
 
 ArrayLike = TypeVar("ArrayLike", torch.Tensor, np.ndarray)
 
@@ -49,7 +49,7 @@ _REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[\w.-]+$")
 _CHUNK = 16_384
 #: The shipped inference checkpoint; "pretrained" names it wherever a checkpoint path is accepted.
 PRETRAINED_NAME = "pretrained"
-PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
+PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
 
 
 class BFM:
@@ -86,7 +86,7 @@ class BFM:
         device: str | torch.device = "cpu",
         revision: str | None = None,
         cache_dir: str | Path | None = None,
-    ) -> "BFM":
+    ) -> BFM:
         """Load from a checkpoint directory (a training run directory means its latest checkpoint), or from a
         Hugging Face repo id (downloaded once into the HF cache; HF_HUB_OFFLINE=1 uses the cache only)."""
         path = resolve_checkpoint(path_or_repo_id, revision=revision, cache_dir=cache_dir)
@@ -97,7 +97,7 @@ class BFM:
         return cls(ckpt.model, ckpt.config, source=str(path_or_repo_id), checkpoint=ckpt)
 
     @classmethod
-    def pretrained(cls, device: str | torch.device = "cpu") -> "BFM":
+    def pretrained(cls, device: str | torch.device = "cpu") -> BFM:
         """The model that ships inside the package (`fbcpr/pretrained/`, its model card is the README there)."""
         return cls.load(pretrained_dir(), device=device)
 

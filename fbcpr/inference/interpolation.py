@@ -15,14 +15,14 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 
-from fbcpr.inference.bfm import BFM, check_compatible
 from fbcpr.core.checkpoint import REWARD_KEYS, CheckpointError
 from fbcpr.core.errors import InputError
+from fbcpr.inference.bfm import BFM, check_compatible
 
 
 def interpolate(base: BFM, tuned: BFM, alpha: float) -> BFM:

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Literal, Protocol, Union, get_args
 import numpy as np
 import torch
 
-from fbcpr.core.errors import FBCPRError
+from fbcpr.core.errors import PromptError
 from fbcpr.nn.latents import TEMPERATURE, reward_weights, tracking_sums
 
 if TYPE_CHECKING:
@@ -255,7 +255,7 @@ def builtin_clip_names() -> list[str]:
     return [c.name for c in default_clips()]
 
 
-def load_motion(spec: "str | Path") -> "Clip":
+def load_motion(spec: str | Path) -> Clip:
     """A clip from an .npz file, or a built-in synthetic clip by name; errors name the file or list the names."""
     from motions.clip import ClipFormatError, load_clip
 

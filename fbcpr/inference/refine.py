@@ -22,9 +22,9 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from fbcpr.nn.networks import project_sphere
 from fbcpr.core.errors import PromptError
 from fbcpr.inference.prompt import RewardSpec, reward_fn
+from fbcpr.nn.networks import project_sphere
 
 #: The most envs one generation may step at once (population x starts): ~0.1 MB of simulation state each.
 MAX_ENVS = 4096

@@ -28,7 +28,6 @@ from fbcpr.core.errors import InputError, PromptError
 from fbcpr.inference.prompt import PromptableModel, regress_reward, reward_fn
 from fbcpr.nn.latents import TEMPERATURE
 
-
 #: The inference method stored prompts were made with: `Prompt.reward`'s default.
 METHOD = "weighted"
 #: Most states prompts are inferred from at once: B of a million states takes 1 GB beside their 1.4 GB of

@@ -95,7 +95,7 @@ class Timeline:
         self.segments = list(segments)
 
     @classmethod
-    def build(cls, prompt: Prompt, items: Sequence[tuple[Item, float]], fps: float = CONTROL_HZ) -> "Timeline":
+    def build(cls, prompt: Prompt, items: Sequence[tuple[Item, float]], fps: float = CONTROL_HZ) -> Timeline:
         """Infer the z of every (item, seconds) pair; reward and goal zs are held, clips are tracked."""
         total = 0.0
         for i, (item, seconds) in enumerate(items, 1):  # all bounds first: no prompt runs for a timeline that fails
@@ -128,7 +128,7 @@ class Timeline:
         return cls(segments)
 
     @classmethod
-    def from_string(cls, prompt: Prompt, text: str, fps: float = CONTROL_HZ) -> "Timeline":
+    def from_string(cls, prompt: Prompt, text: str, fps: float = CONTROL_HZ) -> Timeline:
         """Parse "move-ego-0-2:4,jump-2:2,sitonground:4" and infer every segment's zs."""
         return cls.build(prompt, parse_timeline(text), fps=fps)
 

@@ -13,7 +13,7 @@ default CUDA generator or from the generators handed to `GraphedStep`.
 from __future__ import annotations
 
 import warnings
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import Tensor

@@ -43,7 +43,7 @@ from torch.optim.optimizer import register_optimizer_step_pre_hook
 from fbcpr.core.errors import ConfigError
 
 #: The replica group whose `synchronized()` block is running (hooks and normalisers consult it); None outside.
-_ACTIVE: "Replicas | None" = None
+_ACTIVE: Replicas | None = None
 
 
 class DistributedError(RuntimeError):

@@ -16,8 +16,8 @@ scipy for the equal-length fallback) tracking evaluation and the priority refres
 from __future__ import annotations
 
 import csv
-import json
 import functools
+import json
 import math
 import os
 import random
@@ -25,11 +25,11 @@ import shutil
 import signal
 import time
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -38,11 +38,11 @@ from rich.progress import BarColumn, Progress, ProgressColumn, Task, TextColumn,
 from rich.table import Column
 from rich.text import Text
 
-from fbcpr.train.buffer import ReplayBuffer, transition_specs
 from fbcpr.core.checkpoint import (
     REPLAY_FILE,
     CheckpointError,
     discard_checkpoint,
+    inconsistent_rows,
     latest_checkpoint,
     list_checkpoints,
     load_checkpoint,
@@ -52,17 +52,16 @@ from fbcpr.core.checkpoint import (
     save_checkpoint,
     write_pointer,
 )
-from fbcpr.nn import distributed
 from fbcpr.core.errors import ConfigError
+from fbcpr.core.protocols import EnvBundle, OnlineAgent
+from fbcpr.core.registry import get_method
 from fbcpr.core.schema import Config, TrainConfig
-from fbcpr.train.device_batches import DeviceBatches
-from fbcpr.core.checkpoint import inconsistent_rows
-from fbcpr.core.protocols import EnvBundle
 from fbcpr.envs.bundle import make_env
 from fbcpr.eval.tracking import tracking_scores
 from fbcpr.metrics import EMDUnavailable
-from fbcpr.core.registry import get_method
-from fbcpr.core.protocols import OnlineAgent
+from fbcpr.nn import distributed
+from fbcpr.train.buffer import ReplayBuffer, transition_specs
+from fbcpr.train.device_batches import DeviceBatches
 
 LIVE_KEYS = ("fb_loss", "actor_loss", "critic_loss", "disc_loss", "reward")
 #: |action| beyond which a component counts as saturated (at a joint limit's side of the PD range).
@@ -478,9 +477,9 @@ class Trainer:
         """The policy as it is now, prompted like a checkpoint would be (a BFM through the reward-inference
         sample; a single-task agent acts on its own), on the same starts at every evaluation:
         `train.eval_upright` (the stand prompt) and `train.eval_tasks` (returns, goal success)."""
-        from fbcpr.inference.agents import live_agent
         from fbcpr.eval.runner import EPISODE_STEPS, evaluate
         from fbcpr.eval.upright import upright_medians
+        from fbcpr.inference.agents import live_agent
 
         tc = self.cfg.train
         agent = live_agent(self.agent.model, self.cfg, self._reward_sample()[0])

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 from typing import Any
 
 import mujoco
@@ -180,7 +180,7 @@ def _lookup(name: str) -> GoalPose:
     return GOALS[name]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _goal_qpos_cached(name: str) -> np.ndarray:
     q = pose_qpos(_lookup(name))
     q.setflags(write=False)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tests.conftest import two_clips  # noqa: F401 (a fixture)
 from fbcpr.train.trainer import Trainer
 from motions.demonstrations import save_demonstration
 from tests.test_demonstrations import humanoid_cfg, planned  # noqa: F401 (a fixture)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import tiny_humanoid_checkpoint
+from tests.conftest import tiny_humanoid_checkpoint, two_clips  # noqa: F401 (a fixture)
 from fbcpr.inference.bfm import BFM
 from fbcpr.eval.runner import evaluate
 from humanoid_env.tasks import GOALS

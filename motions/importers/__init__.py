@@ -15,9 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from motions.clip import FPS, Clip, ClipFormatError, from_qpos, load_clip, save_clip
-from motions.kinematics import repeat_loop
 from motions.formats import FORMATS, UnknownFormatError, detect_format
+from motions.kinematics import repeat_loop
 from motions.retarget import Retargeter, RetargetReport
+
+__all__ = ["FORMATS", "UnknownFormatError", "cache_dir", "detect_format", "import_file"]
 
 #: Bump when a converter's output changes, so cached conversions are not reused.
 CONVERTER_VERSION = "2"

@@ -9,9 +9,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from fbcpr.core.errors import InputError
 from fbcpr.apps.npmp.checkpoint import load_npmp
-from fbcpr.core.errors import PromptError
+from fbcpr.core.errors import InputError, PromptError
 from fbcpr.inference.prompt import motion_observations
 from humanoid_env.actions import DEFAULT_ACTION_MAPPING
 

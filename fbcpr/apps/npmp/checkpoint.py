@@ -12,6 +12,8 @@ from typing import Any
 
 import torch
 
+from fbcpr.apps.npmp.config import npmp_config
+from fbcpr.apps.npmp.model import NPMPModel
 from fbcpr.core.checkpoint import (
     MANIFEST_FILE,
     MODEL_FILE,
@@ -26,8 +28,6 @@ from fbcpr.core.checkpoint import (
 )
 from fbcpr.core.errors import ConfigError
 from fbcpr.core.schema import config_to_dict
-from fbcpr.apps.npmp.config import npmp_config
-from fbcpr.apps.npmp.model import NPMPModel
 
 ALGORITHM = "npmp"
 INFO_FILE = "npmp.json"

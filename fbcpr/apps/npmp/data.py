@@ -14,9 +14,10 @@ unpickles. `max_bytes` bounds a dataset before any simulation runs.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -75,7 +76,7 @@ class ExpertData:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "ExpertData":
+    def load(cls, path: str | Path) -> ExpertData:
         """Read and validate a dataset file; DataError naming the file and the problem otherwise."""
         path = Path(path)
         if not path.is_file():

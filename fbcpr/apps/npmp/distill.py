@@ -14,19 +14,19 @@ Steps past an episode's end repeat its last frame and are masked out of the loss
 from __future__ import annotations
 
 import signal
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import torch
 from torch import Tensor
 
-from fbcpr.core.checkpoint import CheckpointError, discard_checkpoint, latest_checkpoint, write_pointer
 from fbcpr.apps.npmp.checkpoint import load_npmp, save_npmp
 from fbcpr.apps.npmp.config import NPMPConfig
 from fbcpr.apps.npmp.data import ExpertData
 from fbcpr.apps.npmp.model import NPMPModel, kl_to_prior
+from fbcpr.core.checkpoint import CheckpointError, discard_checkpoint, latest_checkpoint, write_pointer
 from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.train.trainer import STOP_SIGNALS
 

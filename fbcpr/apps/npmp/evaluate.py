@@ -6,7 +6,8 @@ EMD is a cost, so the relative score of a clip is EMD_expert / EMD_npmp: 1 is ex
 like the paper's return ratio. Clips the NPMP was distilled on are `train`, the others `held_out`."""
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

@@ -13,9 +13,9 @@ import math
 import torch
 from torch import Tensor, nn
 
+from fbcpr.apps.npmp.config import NPMPConfig
 from fbcpr.nn.networks import Stack
 from fbcpr.nn.normalizer import RunningNormalizer
-from fbcpr.apps.npmp.config import NPMPConfig
 
 
 def prior_params(z_prev: Tensor, alpha: float) -> tuple[Tensor, float]:

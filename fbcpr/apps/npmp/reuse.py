@@ -13,8 +13,9 @@ single-task agents (TD3) run unchanged; its task rewards read the env part of th
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
-from typing import Any, Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -22,13 +23,12 @@ import torch
 from gymnasium.vector import VectorEnv, VectorWrapper
 from gymnasium.vector.utils import batch_space
 
-from fbcpr.core.checkpoint import CheckpointError
-from fbcpr.core.errors import ConfigError
-from fbcpr.core.schema import EnvConfig
-from fbcpr.core.protocols import EnvBundle, TaskReward
-from fbcpr.core.errors import InputError
 from fbcpr.apps.npmp.checkpoint import load_npmp
 from fbcpr.apps.npmp.model import NPMPModel, prior_params
+from fbcpr.core.checkpoint import CheckpointError
+from fbcpr.core.errors import ConfigError, InputError
+from fbcpr.core.protocols import EnvBundle, TaskReward
+from fbcpr.core.schema import EnvConfig
 
 
 class LatentActionEnv(VectorWrapper):

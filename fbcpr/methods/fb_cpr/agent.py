@@ -16,27 +16,28 @@ On CUDA, `agent.cuda_graph` captures the whole step (`_train_step`) in one CUDA 
 from __future__ import annotations
 
 import copy
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from fbcpr.nn import distributed
 from fbcpr.core.errors import ConfigError
-from fbcpr.core.schema import Config, ModelConfig
-from fbcpr.methods.fb_cpr.config import AgentConfig
-from fbcpr.nn.cuda_graph import GraphedStep, make_capturable
 from fbcpr.core.protocols import TaskReward
+from fbcpr.core.schema import Config, ModelConfig
 from fbcpr.methods.fb_cpr import losses
 from fbcpr.methods.fb_cpr.anchor import ActorAnchor, reward_prompts
+from fbcpr.methods.fb_cpr.config import AgentConfig
 from fbcpr.methods.fb_cpr.imitation import discriminator_terms, encode_windows
 from fbcpr.methods.fb_cpr.model import FBCPRModel
+from fbcpr.nn import distributed
+from fbcpr.nn.cuda_graph import GraphedStep, make_capturable
 from fbcpr.nn.lazy_metrics import LazyMetrics
-from fbcpr.rewards.near.conditional import ConditionalEnergy
 from fbcpr.nn.networks import project_sphere
 from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.nn.precision import resolve_bf16
+from fbcpr.rewards.near.conditional import ConditionalEnergy
 
 #: Modules with a Polyak-averaged target copy.
 TARGETS = ("forward_map", "backward_map", "critic")
@@ -94,7 +95,7 @@ class FBCPRAgent:
         self._step = GraphedStep(self._train_step, self.device, [self.generator]) if self.graphed else self._train_step
 
     @classmethod
-    def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> "FBCPRAgent":
+    def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> FBCPRAgent:
         return cls(cfg.model, cfg.agent, device, seed,
                    task_reward=bundle.task_reward if cfg.agent.anchor_rewards else None)
 

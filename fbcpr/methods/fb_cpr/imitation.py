@@ -7,13 +7,14 @@ own, so the latent-conditioned reward can drive another learner or be inspected 
 """
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import torch
 from torch import Tensor
 
-from fbcpr.nn.adversarial import discriminator_loss, gradient_penalty
 from fbcpr.methods.fb_cpr.model import FBCPRModel
+from fbcpr.nn.adversarial import discriminator_loss, gradient_penalty
 from fbcpr.nn.networks import Discriminator, project_sphere
 from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
 

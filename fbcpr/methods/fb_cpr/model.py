@@ -12,8 +12,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from fbcpr.core.schema import ModelConfig
 from fbcpr.core.errors import InputError
+from fbcpr.core.schema import ModelConfig
 from fbcpr.nn.networks import BackwardNet, Discriminator, ZConditionedNet, noisy_action, project_sphere
 from fbcpr.nn.normalizer import RunningNormalizer
 

@@ -8,21 +8,21 @@ FB-CPR (`fbcpr.nn.ensemble_td`); exploration and target smoothing the same clipp
 from __future__ import annotations
 
 import copy
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from fbcpr.core.protocols import ImitationReward, TaskReward
 from fbcpr.core.schema import Config, ModelConfig
+from fbcpr.methods.td3.config import TD3Config
+from fbcpr.methods.td3.model import TD3Model
 from fbcpr.nn.ensemble_td import action_penalty, behaviour_cloning, pessimistic, td_loss
-from fbcpr.core.protocols import TaskReward
 from fbcpr.nn.lazy_metrics import LazyMetrics
 from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.nn.precision import resolve_bf16
-from fbcpr.core.protocols import ImitationReward
-from fbcpr.methods.td3.config import TD3Config
-from fbcpr.methods.td3.model import TD3Model
 
 
 class TD3Agent:
@@ -49,7 +49,7 @@ class TD3Agent:
         self.num_updates = 0
 
     @classmethod
-    def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> "TD3Agent":
+    def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> TD3Agent:
         """TD3 on `agent.reward`: the env's registry task and/or an imitation reward of its demonstrations."""
         from fbcpr.core.registry import imitation_reward
 

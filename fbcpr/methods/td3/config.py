@@ -3,9 +3,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from fbcpr.rewards.amp.config import AMPConfig
 from fbcpr.core.errors import ConfigError
 from fbcpr.core.schema import NON_NEGATIVE, POSITIVE, Config, MethodConfig, _check, _f, check_windows
+from fbcpr.rewards.amp.config import AMPConfig
 from fbcpr.rewards.near.config import NEARConfig
 from fbcpr.rewards.progress import ProgressConfig
 from fbcpr.rewards.virl.config import VIRLConfig

@@ -9,8 +9,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from fbcpr.core.schema import ModelConfig
 from fbcpr.core.errors import InputError
+from fbcpr.core.schema import ModelConfig
 from fbcpr.nn.networks import Stack, noisy_action
 from fbcpr.nn.normalizer import RunningNormalizer
 

@@ -18,10 +18,10 @@ import torch
 from torch import Tensor
 
 from fbcpr.nn.adversarial import discriminator_loss, gradient_penalty
-from fbcpr.rewards.amp.config import AMPConfig
 from fbcpr.nn.networks import Discriminator
 from fbcpr.nn.normalizer import RunningNormalizer
 from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
+from fbcpr.rewards.amp.config import AMPConfig
 
 
 def window_transitions(windows: Tensor) -> tuple[Tensor, Tensor]:

@@ -30,11 +30,11 @@ import torch
 from torch import Tensor, nn
 
 from fbcpr.nn import distributed
+from fbcpr.nn.normalizer import RunningNormalizer
 from fbcpr.rewards.near.annealing import Annealer
 from fbcpr.rewards.near.config import NEARConfig
 from fbcpr.rewards.near.energy import EnergyNet, dsm_loss, ema_update, noise_levels
 from fbcpr.rewards.near.reward import STD_FLOOR, level_reward
-from fbcpr.nn.normalizer import RunningNormalizer
 
 
 class ConditionalEnergy(nn.Module):

@@ -26,13 +26,12 @@ import torch
 from torch import Tensor
 
 from fbcpr.nn import distributed
+from fbcpr.nn.normalizer import RunningNormalizer
+from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.rewards.amp.reward import window_transitions
 from fbcpr.rewards.near.annealing import Annealer
 from fbcpr.rewards.near.config import NEARConfig
 from fbcpr.rewards.near.energy import EnergyNet, dsm_loss, ema_update, noise_levels
-from fbcpr.nn.normalizer import RunningNormalizer
-from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
-
 
 #: Each feature's std in M is at least this fraction of its half's median std: a single clip holds features that
 #: barely move, and standardising by their ~0 spread would blow any deviation of the agent up by orders of magnitude.
