@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from fbcpr.core.config import config_from_dict, load_config
+from fbcpr.core.config import config_from_dict, find_config, load_config
 from fbcpr.core.errors import ConfigError
 from fbcpr.core.schema import PRESETS, dump_config
 
@@ -155,3 +155,25 @@ def test_env_of_a_model_only_config_is_the_default_humanoid():
     toy = config_from_dict({"env": {"name": "toy"}})
     assert env_of(toy) is toy.env and env_of(toy).name == "toy"
     assert env_of(ModelConfig()).name == "humanoid" and env_of(ModelConfig()).action_mapping == "rest"
+
+
+def test_shipped_configs_read_clips_from_the_data_directory(tmp_path, monkeypatch):
+    """An installed package's configs cannot point into a source tree: `$FBCPR_DATA/...` names the data directory,
+    the environment variable's folder, else `data` in the working directory."""
+    monkeypatch.delenv("FBCPR_DATA", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert load_config(find_config("cpu")).env.motions == str(tmp_path / "data" / "clips" / "mixed")
+    monkeypatch.setenv("FBCPR_DATA", str(tmp_path / "elsewhere"))
+    cfg = load_config(find_config("virl-walk"))
+    assert cfg.env.motions == str(tmp_path / "elsewhere" / "clips" / "deepmimic" / "walk.npz")
+    assert cfg.agent.virl.multitask == str(tmp_path / "elsewhere" / "clips" / "deepmimic")
+
+
+def test_other_relative_paths_stay_relative_to_the_config_file(tmp_path, monkeypatch):
+    monkeypatch.setenv("FBCPR_DATA", str(tmp_path / "d"))
+    (tmp_path / "proj").mkdir()
+    p = tmp_path / "proj" / "mine.yaml"
+    p.write_text("env:\n  motions: clips/a.npz\n  focus_motions: ${FBCPR_DATA}/rises\n  focus_prob: 0.1\n")
+    cfg = load_config(p)
+    assert cfg.env.motions == str(tmp_path / "proj" / "clips" / "a.npz")
+    assert cfg.env.focus_motions == str(tmp_path / "d" / "rises")

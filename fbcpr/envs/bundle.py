@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from fbcpr.core.config import DATA_VAR
 from fbcpr.core.errors import ConfigError
 from fbcpr.core.protocols import EnvBundle, StateObserver, TaskReward
 from fbcpr.core.registry import LATENT_ACTIONS, env_kind, load
@@ -85,7 +86,8 @@ def humanoid_bundle(cfg: EnvConfig, num_envs: int, threads: int | None = None) -
         path = Path(cfg.motions)
         if not path.exists():
             raise FileNotFoundError(f"env.motions: {path} does not exist (give a clip .npz, a folder of them or "
-                                    "'synthetic')")
+                                    f"'synthetic'; the shipped configs read clips from the data directory, "
+                                    f"${DATA_VAR} or ./data: `fbcpr motions import ... --out {path}` makes them)")
         lib = MotionLibrary.load([path] if path.is_file() else path)  # one clip: single-demonstration imitation
 
     def task_reward(name: str) -> TaskReward:
