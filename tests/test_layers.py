@@ -136,7 +136,7 @@ def test_registry_entries_resolve(entry):
     from fbcpr.core import registry
 
     paths = {"methods": [p for m in registry.METHODS.values() for p in (m.config_path, m.agent_path, m.model_path)],
-             "rewards": list(registry.IMITATION_REWARDS.values()),
+             "rewards": [p for r in registry.IMITATION_REWARDS.values() for p in (r.reward_path, r.config_path)],
              "envs": [p for e in registry.ENVS.values() for p in (e.make_path, e.observer_path)],
              "offline": [*registry.OFFLINE_MODELS.values(), registry.LATENT_ACTIONS]}[entry]
     for path in paths:

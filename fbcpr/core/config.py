@@ -8,8 +8,8 @@ ship inside the installed package find a user's clips.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import difflib
-import functools
 import os
 import typing
 from importlib import resources
@@ -146,13 +146,6 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
-#: Config keys that hold a file or folder path, for the envs where they do ("synthetic" names the built-in clips,
-#: and the toy's env.motions names demonstrations, not paths); env None: every env. Sections may be dotted.
-PATH_KEYS = (("env", "motions", "humanoid"), ("env", "focus_motions", "humanoid"), ("env", "npmp", None),
-             ("agent.virl", "multitask", "humanoid"), ("agent.virl", "demo_frames", None),
-             ("train", "demonstrations", "humanoid"))
-
-
 def load_config(path: str | Path) -> Config:
     """Read a YAML config file (safe_load only); relative paths in it are taken from the file's folder, so a
     config works from any working directory."""
@@ -189,13 +182,19 @@ def resolve_path(value: str, base: Path) -> Path:
 
 
 def _paths(cfg: Config) -> list[tuple[Any, str, str]]:
-    """(section object, key, value) of every path that `cfg` holds (PATH_KEYS that are set, for its env)."""
+    """(section object, key, value) of every path `cfg` holds: the set fields marked `path` for its env, in every
+    section, a method's and its rewards' included ("synthetic" names the built-in clips, not a path)."""
     out = []
-    for section, key, env in PATH_KEYS:
-        part = functools.reduce(lambda obj, name: getattr(obj, name, None), section.split("."), cfg)
-        value = getattr(part, key, None)
-        if value is not None and value != "synthetic" and env in (None, cfg.env.name):
-            out.append((part, key, value))
+
+    def walk(section: Any) -> None:
+        for f in dataclasses.fields(section):
+            value = getattr(section, f.name)
+            if dataclasses.is_dataclass(value):
+                walk(value)
+            elif isinstance(value, str) and value != "synthetic" and f.metadata.get("path") in ("any", cfg.env.name):
+                out.append((section, f.name, value))
+
+    walk(cfg)
     return out
 
 

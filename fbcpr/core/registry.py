@@ -6,6 +6,7 @@ and one line here.
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -58,17 +59,25 @@ class Method:
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("fb_cpr", "fbcpr.methods.fb_cpr.config:AgentConfig", "fbcpr.methods.fb_cpr.agent:FBCPRAgent",
            "fbcpr.methods.fb_cpr.model:FBCPRModel", True),
-    Method("td3", "fbcpr.methods.td3.config:TD3Config", "fbcpr.methods.td3.agent:TD3Agent",
+    Method("td3", "fbcpr.methods.td3.config:TD3Section", "fbcpr.methods.td3.agent:TD3Agent",
            "fbcpr.methods.td3.model:TD3Model", False),
 )}
 
+@dataclass(frozen=True)
+class Reward:
+    """Where one imitation reward's class and its config section live ("module:Class")."""
+
+    reward_path: str
+    config_path: str
+
+
 #: Imitation rewards (`fbcpr.core.protocols.ImitationReward`) an RL agent can be trained on, by
-#: `agent.reward.imitation` name; each reads the agent config's section of the same name.
-IMITATION_REWARDS: dict[str, str] = {
-    "amp": "fbcpr.rewards.amp.reward:AMPReward",
-    "near": "fbcpr.rewards.near.reward:NEARReward",
-    "virl": "fbcpr.rewards.virl.reward:VIRLReward",
-    "progress": "fbcpr.rewards.progress:ProgressReward",
+#: `agent.reward.imitation` name; each brings the agent config section of the same name (`agent.amp`, ...).
+IMITATION_REWARDS: dict[str, Reward] = {
+    "amp": Reward("fbcpr.rewards.amp.reward:AMPReward", "fbcpr.rewards.amp.config:AMPConfig"),
+    "near": Reward("fbcpr.rewards.near.reward:NEARReward", "fbcpr.rewards.near.config:NEARConfig"),
+    "virl": Reward("fbcpr.rewards.virl.reward:VIRLReward", "fbcpr.rewards.virl.config:VIRLConfig"),
+    "progress": Reward("fbcpr.rewards.progress:ProgressReward", "fbcpr.rewards.progress:ProgressConfig"),
 }
 
 
@@ -122,4 +131,13 @@ def imitation_reward(name: str, obs_dim: int, agent_cfg: Any, device: torch.devi
     if name not in IMITATION_REWARDS:
         raise ConfigError(f"agent.reward.imitation: unknown imitation reward {name!r}; choose from "
                           f"{sorted(IMITATION_REWARDS)}")
-    return load(IMITATION_REWARDS[name])(obs_dim, getattr(agent_cfg, name), device, seed, library=library)
+    return load(IMITATION_REWARDS[name].reward_path)(obs_dim, getattr(agent_cfg, name), device, seed, library=library)
+
+
+def with_imitation_sections(base: type[MethodConfig], name: str, doc: str) -> type[MethodConfig]:
+    """`base` with one config section per registered imitation reward (`agent.amp`, `agent.near`, ...), each
+    defaulting to that reward's own config: a method that trains on any imitation reward takes its sections from
+    here, so a new reward needs only its registry line."""
+    sections = [(key, load(r.config_path)) for key, r in IMITATION_REWARDS.items()]
+    fields = [(key, cls, dataclasses.field(default_factory=cls, metadata={"check": None})) for key, cls in sections]
+    return dataclasses.make_dataclass(name, fields, bases=(base,), namespace={"__doc__": doc})

@@ -36,11 +36,13 @@ NON_NEGATIVE = _check(lambda v: v >= 0, "must be >= 0")
 PROB = _check(lambda v: 0.0 <= v <= 1.0, "must be in [0, 1]")
 
 
-def _f(default: Any, check: Callable[[Any], str | None] | None = None, **kw: Any) -> Any:
-    """A dataclass field with an optional validator stored in its metadata."""
+def _f(default: Any, check: Callable[[Any], str | None] | None = None, path: str | None = None, **kw: Any) -> Any:
+    """A dataclass field with an optional validator stored in its metadata. `path`: the field holds a file or
+    folder path for the env of that name ("any": every env), which reading a config file resolves."""
+    meta = {"check": check, "path": path}
     if isinstance(default, (list, dict)):
-        return field(default_factory=lambda d=default: type(d)(d), metadata={"check": check}, **kw)
-    return field(default=default, metadata={"check": check}, **kw)
+        return field(default_factory=lambda d=default: type(d)(d), metadata=meta, **kw)
+    return field(default=default, metadata=meta, **kw)
 
 
 @dataclass
@@ -84,7 +86,7 @@ class EnvConfig:
     """Which environment and demonstrations; the trainer only sees what `fbcpr.envs.bundle.make_env` builds."""
 
     name: str = _f("humanoid")  # an env kind of the registry (`fbcpr.core.registry.ENVS`), checked on load
-    motions: str = _f("synthetic")  # humanoid: a folder of clips or one clip .npz; toy: "synthetic" (all demos) or demo names
+    motions: str = _f("synthetic", path="humanoid")  # humanoid: a folder of clips or one clip .npz; toy: "synthetic" (all demos) or demo names
     fall_prob: float = _f(0.2, PROB)
     stand_prob: float = _f(0.0, PROB)  # humanoid: share of training episodes that start from the standing rest pose
     # humanoid: share of training episodes that start on a frame of the clips named in focus_clips (reference-state
@@ -94,7 +96,7 @@ class EnvConfig:
     # humanoid: or draw those starts from the frames of other clips, a clip .npz or a folder of them, e.g. the sampling
     # planner's getting-up demonstrations (motions.demonstrations): states the body really passes through on a rise
     # that works, velocities included, where a mocap clip's frames are only kinematic
-    focus_motions: str | None = _f(None)
+    focus_motions: str | None = _f(None, path="humanoid")
     max_episode_steps: int = _f(300, _range(1, 10**7))
     action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
     # humanoid: truncate a training episode (not terminate: no reward or objective changes) once the pelvis has
@@ -109,7 +111,7 @@ class EnvConfig:
     reset_fallen_once_up: bool = _f(False)
     # reuse (fbcpr.apps.npmp.reuse): an NPMP checkpoint whose frozen decoder turns actions in its latent space into the
     # env's actions; the agent then acts with the AR(1) prior's innovation eps = npmp_innovation_scale * a
-    npmp: str | None = _f(None)
+    npmp: str | None = _f(None, path="any")
     npmp_innovation_scale: float = _f(math.sqrt(3.0), POSITIVE)  # sqrt(3): uniform actions have unit variance
 
 
@@ -168,7 +170,7 @@ class TrainConfig:
     # up, lab/experiments/getup_planner.py --save) whose transitions go into the replay buffer when a run starts (fresh or
     # --init-from), each demonstration_copies times: transitions that exploration has not found. As plain transitions
     # they made TD3's critic diverge in lab/log.md section 32
-    demonstrations: str | None = _f(None)
+    demonstrations: str | None = _f(None, path="humanoid")
     demonstration_copies: int = _f(1, _range(1, 1000))
     # > 0: the demonstrations are held apart from the replay buffer (never overwritten) and this share of every
     # update's batch is drawn from them, marked so that a loss can treat them apart (TD3's agent.bc_weight)

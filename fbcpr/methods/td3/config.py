@@ -1,14 +1,12 @@
-"""The `agent:` section of `algorithm: td3` (Table 8) with its reward sources and their imitation-reward sections."""
+"""The `agent:` section of `algorithm: td3` (Table 8): its hyperparameters, its reward sources, and one section per
+registered imitation reward (`TD3Section`, built from the registry)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 from fbcpr.core.errors import ConfigError
+from fbcpr.core.registry import with_imitation_sections
 from fbcpr.core.schema import NON_NEGATIVE, POSITIVE, Config, MethodConfig, _check, _f, check_windows
-from fbcpr.rewards.amp.config import AMPConfig
-from fbcpr.rewards.near.config import NEARConfig
-from fbcpr.rewards.progress import ProgressConfig
-from fbcpr.rewards.virl.config import VIRLConfig
 
 
 @dataclass
@@ -52,10 +50,6 @@ class TD3Config(MethodConfig):
     bootstrap_demo_actions: bool = _f(False)
     bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
     reward: RewardConfig = field(default_factory=RewardConfig)
-    amp: AMPConfig = field(default_factory=AMPConfig)
-    near: NEARConfig = field(default_factory=NEARConfig)
-    virl: VIRLConfig = field(default_factory=VIRLConfig)
-    progress: ProgressConfig = field(default_factory=ProgressConfig)
 
     def validate_run(self, run: Config) -> None:
         check_windows(self.batch_size, self.seq_length)
@@ -69,3 +63,7 @@ class TD3Config(MethodConfig):
         if run.env.npmp is not None and self.reward.imitation:
             raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
                               "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")
+
+
+#: The section `algorithm: td3` reads: TD3Config plus `agent.<name>` for each imitation reward of the registry.
+TD3Section = with_imitation_sections(TD3Config, "TD3Section", TD3Config.__doc__ or "")

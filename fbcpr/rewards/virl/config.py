@@ -30,8 +30,8 @@ class VIRLConfig:
     frame_reward_weight: float = _f(1.0, NON_NEGATIVE)
     reward_width: float = _f(1.0, POSITIVE)              # reward = exp(-width * distance^2) (App. 7.7 uses 5)
     bank_size: int = _f(256, POSITIVE)                   # demonstration windows the reward aligns against
-    multitask: str | None = _f(None)                     # other clips for the comparator only (names / a folder)
-    demo_frames: str | None = _f(None)                   # video demo: a folder of frames instead of the env's demo
+    multitask: str | None = _f(None, path="humanoid")  # other clips for the comparator only (names / a folder)
+    demo_frames: str | None = _f(None, path="any")  # video demo: a folder of frames instead of the env's demo
 
     def validate(self, prefix: str) -> None:
         if self.seq_reward_weight + self.frame_reward_weight <= 0:
