@@ -102,3 +102,19 @@ def test_fb_cpr_discriminator_is_an_imitation_reward():
     assert last["disc_expert"] - last["disc_online"] > first["disc_expert"] - first["disc_online"] + 0.2
     with pytest.raises(ValueError, match="needs the latent z"):
         imitation.reward(obs, next_obs)
+
+
+def test_an_imitation_reward_brings_its_own_config_section(monkeypatch):
+    """A new imitation reward is one registry line: the TD3 section then reads `agent.<name>` with its config."""
+    from fbcpr.core import registry
+    from fbcpr.core.errors import ConfigError
+    from fbcpr.core.schema import _build
+    from fbcpr.methods.td3.config import TD3Config
+
+    monkeypatch.setitem(registry.IMITATION_REWARDS, "mine", registry.Reward(
+        "fbcpr.rewards.progress:ProgressReward", "fbcpr.rewards.progress:ProgressConfig"))
+    section = registry.with_imitation_sections(TD3Config, "Mine", "")
+    cfg = _build(section, {"mine": {"scale": 2.5}, "reward": {"imitation": "mine"}}, "agent")
+    assert cfg.mine.scale == 2.5 and cfg.amp.lr > 0 and cfg.reward.imitation == "mine"
+    with pytest.raises(ConfigError, match="agent.mine.scale"):
+        _build(section, {"mine": {"scale": -1.0}, "reward": {"imitation": "mine"}}, "agent")
