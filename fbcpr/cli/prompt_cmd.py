@@ -11,6 +11,8 @@ import typer
 from rich.table import Table
 
 from fbcpr.cli.common import cli_errors, console, progress
+from fbcpr.eval.rollout import Step
+from fbcpr.eval.rollout import rollout as step_through
 
 
 @dataclass
@@ -72,15 +74,16 @@ def rollout(bfm: Any, zs: np.ndarray, seed: int = 0, start: tuple[np.ndarray, np
         record(obs, info, 0)
         with progress() as bar:
             task = bar.add_task(label, total=steps)
-            for t in range(steps):
-                action = bfm.act(obs, zs[t])
-                obs, _, _, _, info = env.step(action)
-                ep.actions.append(np.asarray(action, dtype=np.float32))
-                record(obs, info, t + 1)
+
+            def watch(step: Step) -> bool:
+                ep.actions.append(np.asarray(step.action, dtype=np.float32))
+                record(step.obs, step.info, step.t + 1)
                 bar.advance(task)
-                if info["diverged"]:
-                    ep.diverged_at = t
-                    break
+                if step.info["diverged"]:
+                    ep.diverged_at = step.t
+                return bool(step.info["diverged"])
+
+            step_through(env, obs, lambda t, o: bfm.act(o, zs[t]), steps, watch)
     finally:
         env.close()
     return ep

@@ -18,6 +18,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from fbcpr.core.checkpoint import CheckpointError
 from fbcpr.core.errors import InputError, PromptError
 from fbcpr.eval.agents import Agent, SingleTaskAgent, action_mapping
+from fbcpr.eval.rollout import Step, rollout
 from fbcpr.metrics import d_smpl, emd, goal_proximity, goal_success, imitation_scores, tracking_success
 from humanoid_env.observation import OBS_DIM
 
@@ -52,12 +53,14 @@ class Rollouts:
         `info["final_obs"]`, `info["final_qpos"]` and `info["final_qvel"]`."""
         obs, _ = self.env.reset(options={"qpos": qpos, "qvel": qvel})
         alive = np.ones(self.num_envs, bool)
-        for t in range(self.steps):
-            action = np.asarray(agent.act(obs, z_at(t), mean=True), dtype=np.float32)
-            obs, _, _, _, info = self.env.step(action)
-            alive &= ~info["diverged"]
-            on_step(t, info, alive)
+
+        def watch(step: Step) -> None:
+            alive[step.info["diverged"]] = False
+            on_step(step.t, step.info, alive)
             advance()
+
+        rollout(self.env, obs, lambda t, o: np.asarray(agent.act(o, z_at(t), mean=True), dtype=np.float32),
+                self.steps, watch)
 
     def close(self) -> None:
         self.env.close()

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from fbcpr.envs import toy as pm
+from fbcpr.eval.rollout import rollout
 from fbcpr.eval.tracking import tracking_latents
 from fbcpr.metrics import dtw_pose_error, sparc, speed_profile
 from fbcpr.nn.latents import TEMPERATURE, reward_weights
@@ -37,10 +38,9 @@ def goal_reaching(model: Any, rng: np.random.Generator) -> dict[str, float]:
     env = pm.PointMassVectorEnv(len(goals), max_episode_steps=HORIZON + 1)
     obs, _ = env.reset(seed=int(rng.integers(1 << 31)))
     z = None if model is None else model.backward(torch.as_tensor(goals, dtype=torch.float32))
-    dists = []
-    for _ in range(HORIZON):
-        obs, *_ = env.step(_act(model, obs, z, rng))
-        dists.append(np.linalg.norm(obs[:, :2] - goals, axis=1))
+    dists: list[np.ndarray] = []
+    rollout(env, obs, lambda t, o: _act(model, o, z, rng), HORIZON,
+            lambda step: dists.append(np.linalg.norm(step.obs[:, :2] - goals, axis=1)))
     d = np.stack(dists, 1)
     return {"goal_final_dist": float(d[:, -1].mean()), "goal_success": float((d < GOAL_RADIUS).any(1).mean()),
             "goal_proximity": float((d < GOAL_RADIUS).mean())}
@@ -62,11 +62,9 @@ def task_return(model: Any, task: str, rng: np.random.Generator, prompt: bool = 
     env = pm.PointMassVectorEnv(N_STARTS, reward=task, max_episode_steps=HORIZON + 1)
     obs, _ = env.reset(seed=int(rng.integers(1 << 31)))
     z = reward_z(model, task, rng).expand(N_STARTS, -1) if prompt and model is not None else None
-    total = np.zeros(N_STARTS)
-    for _ in range(HORIZON):
-        obs, r, *_ = env.step(_act(model, obs, z, rng))
-        total += r
-    return float(total.mean())
+    rewards: list[np.ndarray] = []
+    rollout(env, obs, lambda t, o: _act(model, o, z, rng), HORIZON, lambda step: rewards.append(step.reward))
+    return float(np.sum(rewards, axis=0).mean())
 
 
 def reward_returns(model: Any, rng: np.random.Generator) -> dict[str, float]:
@@ -82,10 +80,9 @@ def imitation(model: Any, rng: np.random.Generator, seq_length: int = 8) -> dict
         env = pm.PointMassVectorEnv(1, max_episode_steps=len(ref) + 1)
         obs, _ = env.reset(options={"qpos": ref[:1], "qvel": np.zeros((1, pm.NV))})
         zs = None if model is None else tracking_latents(model, ref, seq_length)
-        err = []
-        for t in range(len(ref) - 1):
-            obs, *_ = env.step(_act(model, obs, None if zs is None else zs[t: t + 1], rng))
-            err.append(np.linalg.norm(obs[0, :2] - ref[t + 1, :2]))
+        err: list[float] = []
+        rollout(env, obs, lambda t, o, zs=zs: _act(model, o, None if zs is None else zs[t: t + 1], rng),
+                len(ref) - 1, lambda step, ref=ref: err.append(np.linalg.norm(step.obs[0, :2] - ref[step.t + 1, :2])))
         errs[name] = np.array(err)
     all_err = np.concatenate(list(errs.values()))
     return {"track_error": float(all_err.mean()), "track_within_0.1": float((all_err < 0.1).mean()),
@@ -99,9 +96,7 @@ def demo_rollouts(model: Any, demo: str, rng: np.random.Generator) -> np.ndarray
     env = pm.PointMassVectorEnv(N_STARTS, max_episode_steps=len(ref) + 1)
     obs, _ = env.reset(options={"qpos": np.repeat(ref[:1], N_STARTS, 0), "qvel": np.zeros((N_STARTS, pm.NV))})
     traj = [obs]
-    for _ in range(len(ref) - 1):
-        obs, *_ = env.step(_act(model, obs, None, rng))
-        traj.append(obs)
+    rollout(env, obs, lambda t, o: _act(model, o, None, rng), len(ref) - 1, lambda step: traj.append(step.obs))
     return np.stack(traj, 1)
 
 

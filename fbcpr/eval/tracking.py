@@ -9,6 +9,7 @@ import numpy as np
 import torch
 
 from fbcpr.core.protocols import EnvBundle
+from fbcpr.eval.rollout import Step, rollout
 from fbcpr.nn.latents import tracking_sums
 from fbcpr.nn.networks import project_sphere
 
@@ -36,12 +37,16 @@ def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: 
     try:
         obs, _ = env.reset(seed=0, options={"qpos": np.stack([s[0] for s in starts]), "qvel": np.stack([s[1] for s in starts])})
         traj = [obs]
-        for t in range(horizon):
-            if stop():
-                return None
-            action = model.act(torch.as_tensor(obs, device=model.device), z_all[:, t], mean=True)
-            obs, *_ , info = env.step(action.cpu().numpy())
-            traj.append(info["final_obs"])
+
+        def act(t: int, o: np.ndarray) -> np.ndarray:
+            return model.act(torch.as_tensor(o, device=model.device), z_all[:, t], mean=True).cpu().numpy()
+
+        def watch(step: Step) -> bool:
+            traj.append(step.info["final_obs"])
+            return stop()
+
+        if stop() or rollout(env, obs, act, horizon, watch) < horizon:
+            return None
     finally:
         env.close()
     traj_arr = np.stack(traj, 1)

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from fbcpr.eval.agents import action_mapping
+from fbcpr.eval.rollout import Step, rollout
 from fbcpr.eval.runner import EPISODE_STEPS  # 300 steps: 10 s
 from humanoid_env.env import FALLEN_HEIGHT
 from humanoid_env.model import CONTROL_HZ
@@ -51,9 +52,11 @@ def pelvis_heights(agent: Any, init: Any, episodes: int, steps: int, seed: int,
         z = agent.reward_z(prompt) if isinstance(prompt, str) else np.asarray(prompt, dtype=np.float32)
         z = np.broadcast_to(z, (episodes, agent.z_dim))
         heights = np.empty((steps, episodes))
-        for t in range(steps):
-            obs, *_ = env.step(agent.act(obs, z))
-            heights[t] = obs[:, 0]
+
+        def watch(step: Step) -> None:
+            heights[step.t] = step.obs[:, 0]
+
+        rollout(env, obs, lambda t, o: agent.act(o, z), steps, watch)
     finally:
         env.close()
     return heights

@@ -29,6 +29,7 @@ from fbcpr.core.checkpoint import CheckpointError
 from fbcpr.core.errors import ConfigError, InputError
 from fbcpr.core.protocols import EnvBundle, TaskReward
 from fbcpr.core.schema import EnvConfig
+from fbcpr.eval.rollout import Step, rollout
 
 
 class LatentActionEnv(VectorWrapper):
@@ -124,15 +125,15 @@ def task_return(act: Callable[[np.ndarray], np.ndarray], bundle: EnvBundle, task
     reward, env = bundle.task_reward(task), bundle.make_eval_env(episodes, steps + 1)
     try:
         obs, _ = env.reset(seed=seed)
-        total, change, prev = np.zeros(episodes), 0.0, None
-        for _ in range(steps):
-            action = act(np.asarray(obs, np.float32))
-            obs, _, _, _, info = env.step(action)
-            total += np.asarray(reward(info["final_obs"], info["final_qpos"], info["final_qvel"]))
-            executed = np.asarray(info.get("env_action", action))
-            if prev is not None:
-                change += float(np.linalg.norm(executed - prev, axis=-1).mean())
-            prev = executed
+        total, executed = np.zeros(episodes), []
+
+        def watch(step: Step) -> None:
+            info = step.info
+            total[:] += np.asarray(reward(info["final_obs"], info["final_qpos"], info["final_qvel"]))
+            executed.append(np.asarray(info.get("env_action", step.action)))
+
+        rollout(env, obs, lambda t, o: act(np.asarray(o, np.float32)), steps, watch)
+        change = float(np.linalg.norm(np.diff(np.stack(executed).astype(np.float64), axis=0), axis=-1).mean(-1).sum())
     finally:
         env.close()
     return {"return": float(total.mean()), "action_change": change / max(steps - 1, 1)}
