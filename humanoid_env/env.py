@@ -8,7 +8,7 @@ ends the episode with the last good observation and `info["diverged"] = True`; n
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import gymnasium as gym
 import mujoco
@@ -18,6 +18,9 @@ from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap, check_action
 from humanoid_env.errors import EnvError, InvalidStateError
 from humanoid_env.model import CONTROL_HZ, N_SUBSTEPS, NQ, NU, NV, load_model
 from humanoid_env.observation import OBS_DIM, assemble, read_kinematics
+
+if TYPE_CHECKING:
+    from humanoid_env.render import TrackRenderer
 
 #: RewardFn(obs (N,358), action (N,69) | None, qpos (N,76), qvel (N,75)) -> (N,), on the next state.
 RewardFn = Callable[[np.ndarray, "np.ndarray | None", np.ndarray, np.ndarray], np.ndarray]
@@ -150,7 +153,7 @@ class HumanoidEnv(gym.Env):
         self.max_qvel = float(max_qvel)
         self.render_mode = render_mode
         self._size = (height, width)
-        self._renderer = None
+        self._renderer: TrackRenderer | None = None
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (NU,), np.float32)
         self.action_map = ActionMap(self.model, action_mapping)

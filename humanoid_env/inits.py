@@ -7,7 +7,7 @@ fall_prob = 0.2 on top of MoCap).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import mujoco
 import numpy as np
@@ -15,6 +15,9 @@ import numpy as np
 from humanoid_env.errors import EnvError, InvalidStateError
 from humanoid_env.geometry import lowest_point
 from humanoid_env.model import NQ, NV, default_qpos, joint_ranges, load_model
+
+if TYPE_CHECKING:
+    from humanoid_env.env import InitSampler
 
 
 class StateSource(Protocol):
@@ -150,7 +153,7 @@ class FixedStates:
 class MixtureInit:
     """Each state comes from component k with probability weights[k]."""
 
-    def __init__(self, components: Sequence[object], weights: Sequence[float]) -> None:
+    def __init__(self, components: Sequence[InitSampler], weights: Sequence[float]) -> None:
         w = np.asarray(weights, dtype=np.float64)
         if len(components) == 0 or w.shape != (len(components),) or (w < 0).any() or w.sum() <= 0:
             raise EnvError(f"MixtureInit needs one non-negative weight per component with a positive sum, got {list(weights)}")

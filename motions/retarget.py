@@ -326,7 +326,7 @@ class Retargeter:
             task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(rot), pos))
         self._iterate([*self.tasks.values(), self.posture], iterations)
 
-    def _iterate(self, tasks: list, iterations: int) -> None:
+    def _iterate(self, tasks: list[mink.Task], iterations: int) -> None:
         for _ in range(iterations):
             vel = mink.solve_ik(self.config, tasks, 1.0, solver="daqp", damping=1e-3, limits=self.limits)
             self.config.integrate_inplace(vel, 1.0)
@@ -344,7 +344,7 @@ class Retargeter:
         for t in bad:
             self.config.update(qpos[t])
             self.hold.set_target(qpos[t])
-            tasks = [self.hold]
+            tasks: list[mink.Task] = [self.hold]
             for body, task in self._plant_tasks.items():
                 pose = self.config.get_transform_frame_to_world(body, "body")
                 k = "LR".index(body[0]) if body[0] in "LR" else None

@@ -19,7 +19,8 @@ from humanoid_env.tasks.features import Features, as_obs_batch
 
 
 class RewardFn(Protocol):
-    name: str
+    @property
+    def name(self) -> str: ...
 
     def __call__(self, obs: np.ndarray, action: np.ndarray | None = None, qpos: np.ndarray | None = None,
                  qvel: np.ndarray | None = None) -> np.ndarray: ...
@@ -78,9 +79,12 @@ def _rotate_xy(d: np.ndarray, degrees: float) -> np.ndarray:
 
 
 class _Reward:
-    """Shared validation and the RewardFn call signature; subclasses implement `compute(Features)`."""
+    """Shared validation and the RewardFn call signature; subclasses implement `compute(Features)` and `name` (a
+    property or a dataclass field)."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        raise NotImplementedError
 
     def compute(self, f: Features) -> np.ndarray:
         raise NotImplementedError
@@ -335,7 +339,7 @@ class Mean(_Reward):
         return "+".join(t.name for t in self.terms)
 
     def compute(self, f: Features) -> np.ndarray:
-        return sum(t.compute(f) for t in self.terms) / len(self.terms)
+        return np.asarray(sum(t.compute(f) for t in self.terms)) / len(self.terms)
 
 
 @dataclass(frozen=True)
