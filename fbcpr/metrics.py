@@ -41,8 +41,8 @@ def d_smpl(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(pose_part(a, "d_smpl") - pose_part(b, "d_smpl"), axis=-1)
 
 
-def goal_success(dist: np.ndarray, beta: float = GOAL_BETA) -> np.ndarray:
-    """1 where the goal was reached (d <= beta) at any step; `dist` is (..., T) over an episode."""
+def goal_success(dist: np.ndarray, beta: float = GOAL_BETA) -> np.ndarray | np.float64:
+    """1 where the goal was reached (d <= beta) at any step; `dist` is (..., T) over an episode (a scalar for one)."""
     return (np.asarray(dist) <= beta).any(axis=-1).astype(np.float64)
 
 

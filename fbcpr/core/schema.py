@@ -39,7 +39,7 @@ PROB = _check(lambda v: 0.0 <= v <= 1.0, "must be in [0, 1]")
 def _f(default: Any, check: Callable[[Any], str | None] | None = None, **kw: Any) -> Any:
     """A dataclass field with an optional validator stored in its metadata."""
     if isinstance(default, (list, dict)):
-        return field(default_factory=lambda d=default: type(d)(d), metadata={"check": check}, **kw)
+        return field(default_factory=lambda: type(default)(default), metadata={"check": check}, **kw)
     return field(default=default, metadata={"check": check}, **kw)
 
 
@@ -241,8 +241,8 @@ def _type_ok(value: Any, tp: Any) -> tuple[bool, Any]:
         (item,) = typing.get_args(tp)
         if not isinstance(value, list):
             return False, value
-        checked = [_type_ok(v, item) for v in value]
-        return all(ok for ok, _ in checked), [v for _, v in checked]
+        items = [_type_ok(v, item) for v in value]
+        return all(ok for ok, _ in items), [v for _, v in items]
     return False, value
 
 
@@ -268,7 +268,7 @@ def _build(cls: type, data: Any, prefix: str, sections: dict[str, type] | None =
         key = f"{prefix}.{name}" if prefix else name
         section = names[name].metadata.get("section")  # a sub-section whose class is imported late
         tp = (sections or {}).get(name, section() if section is not None else hints[name])
-        if dataclasses.is_dataclass(tp):
+        if isinstance(tp, type) and dataclasses.is_dataclass(tp):
             kwargs[name] = _build(tp, value, key)
             continue
         ok, coerced = _type_ok(value, tp)

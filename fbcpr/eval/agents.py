@@ -17,6 +17,12 @@ from humanoid_env.model import NU
 from humanoid_env.observation import OBS_DIM
 
 
+class Actor(Protocol):
+    """What a rollout needs of a policy: act(obs (N,358), z (N,d), mean) -> actions (N,69), anything array-like."""
+
+    def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> Any: ...
+
+
 @runtime_checkable
 class Agent(Protocol):
     """act(obs (N,358), z (N,d), mean) -> actions (N,69) in [-1,1]; prompts map tasks to latent vectors."""

@@ -50,6 +50,7 @@ class GraphedStep:
                 return self.step(inputs)
         for key, value in inputs.items():
             self.static_inputs[key].copy_(value)
+        assert self.graph is not None  # set by the successful _capture above
         self.graph.replay()
         return self.static_outputs
 
