@@ -24,6 +24,7 @@ import os
 import shutil
 import time
 import uuid
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -192,12 +193,21 @@ def seal(tmp: Path, path: Path, algorithm: str, model: dict[str, int], extra: di
     swap_into_place(tmp, path)
 
 
+def _model_sizes(model: torch.nn.Module) -> dict[str, int]:
+    """The manifest's sizes of a method's model: each keeps the `ModelConfig` it was built from (as `cfg`, its sizes
+    set, or it would not have built) and has a `z_dim`."""
+    cfg, z_dim = model.cfg, model.z_dim
+    assert isinstance(cfg, ModelConfig) and cfg.obs_dim is not None and cfg.action_dim is not None
+    assert isinstance(z_dim, int)
+    return {"obs_dim": cfg.obs_dim, "action_dim": cfg.action_dim, "z_dim": z_dim}
+
+
 def save_checkpoint(
     path: str | Path,
     model: torch.nn.Module,
     config: Config | ModelConfig,
     trainer_state: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
-    reward_buffer: dict[str, np.ndarray | torch.Tensor] | None = None,
+    reward_buffer: Mapping[str, np.ndarray | torch.Tensor] | None = None,
     replay_buffer: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
     reward_dtype: torch.dtype = torch.float32,
     reward_obs: bool = True,
@@ -237,8 +247,7 @@ def save_checkpoint(
         cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}
         (tmp / CONFIG_FILE).write_text(yaml.safe_dump(cfg_data, sort_keys=False))
         seal(tmp, path, config.algorithm if isinstance(config, Config) else DEFAULT_ALGORITHM,
-             {"obs_dim": model.cfg.obs_dim, "action_dim": model.cfg.action_dim, "z_dim": model.z_dim},
-             {"tensors": shapes})
+             _model_sizes(model), {"tensors": shapes})
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

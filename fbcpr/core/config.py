@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import difflib
-import functools
 import os
 import typing
 from importlib import resources
@@ -192,7 +191,9 @@ def _paths(cfg: Config) -> list[tuple[Any, str, str]]:
     """(section object, key, value) of every path that `cfg` holds (PATH_KEYS that are set, for its env)."""
     out = []
     for section, key, env in PATH_KEYS:
-        part = functools.reduce(lambda obj, name: getattr(obj, name, None), section.split("."), cfg)
+        part: Any = cfg
+        for name in section.split("."):
+            part = getattr(part, name, None)
         value = getattr(part, key, None)
         if value is not None and value != "synthetic" and env in (None, cfg.env.name):
             out.append((part, key, value))

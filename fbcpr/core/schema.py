@@ -13,7 +13,7 @@ import types
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import yaml
 
@@ -50,6 +50,21 @@ class MethodConfig:
 
     def validate_run(self, run: Config) -> None:
         """ConfigError naming the key when this method cannot run with `run`'s other sections."""
+
+
+@runtime_checkable
+class BatchConfig(Protocol):
+    """What the online trainer reads of every method's `agent:` section (each method declares both, with its own
+    defaults and checks): update batches of `batch_size` transitions and demonstration windows of `seq_length`."""
+
+    batch_size: int
+    seq_length: int
+
+
+def batch_config(agent: MethodConfig) -> BatchConfig:
+    """A method's `agent:` section as the trainer reads it."""
+    assert isinstance(agent, BatchConfig), f"{type(agent).__name__}: a method section needs batch_size and seq_length"
+    return agent
 
 
 def check_windows(batch_size: int, seq_length: int) -> None:

@@ -35,7 +35,7 @@ from fbcpr.core.checkpoint import (
 )
 from fbcpr.core.config import portable_config
 from fbcpr.core.errors import InputError
-from fbcpr.core.schema import Config, ModelConfig, config_to_dict, env_of
+from fbcpr.core.schema import Config, ModelConfig, batch_config, config_to_dict, env_of
 from fbcpr.inference.prompt import Prompt
 from fbcpr.inference.reward_prompts import RewardPrompts, load_reward_prompts, weights_digest
 from fbcpr.methods.fb_cpr.config import AgentConfig
@@ -131,7 +131,7 @@ class BFM:
     @property
     def sequence_length(self) -> int:
         """L of ER_FB, the training sequence length (the paper's 8 when the checkpoint has no agent config)."""
-        agent = self.config.agent if isinstance(self.config, Config) else AgentConfig()
+        agent = batch_config(self.config.agent) if isinstance(self.config, Config) else AgentConfig()
         return int(agent.seq_length)
 
     @property

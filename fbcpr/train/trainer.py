@@ -53,9 +53,9 @@ from fbcpr.core.checkpoint import (
     write_pointer,
 )
 from fbcpr.core.errors import ConfigError
-from fbcpr.core.protocols import EnvBundle, OnlineAgent
+from fbcpr.core.protocols import BF16Agent, EnvBundle, GraphedAgent, OnlineAgent
 from fbcpr.core.registry import get_method
-from fbcpr.core.schema import Config, TrainConfig
+from fbcpr.core.schema import BatchConfig, Config, TrainConfig, batch_config
 from fbcpr.envs.bundle import make_env
 from fbcpr.eval.tracking import tracking_scores
 from fbcpr.metrics import EMDUnavailable
@@ -120,7 +120,7 @@ class Trainer:
             if given is not None and given != have:
                 raise ConfigError(f"model.{key}: {given} does not match the {cfg.env.name} env ({have})")
         self.cfg = cfg = replace(cfg, model=replace(cfg.model, obs_dim=b.obs_dim, action_dim=b.action_dim))
-        if cfg.agent.batch_size > tc.buffer_capacity:
+        if batch_config(cfg.agent).batch_size > tc.buffer_capacity:
             raise ConfigError("train.buffer_capacity: must be >= agent.batch_size")
         self._memmap_buffer = check_memory(cfg, b.nq, b.nv, self.out, self.device, copies=r.local_world_size)
 
@@ -144,7 +144,7 @@ class Trainer:
         # a warm start's reader of that sample, for train.eval_at_start: prompts at step 0, and is let go after it
         self._loaded_sample: Callable[[], dict[str, np.ndarray] | None] | None = None
         self.warm_started = init_from is not None and not resume
-        if self.warm_started:
+        if self.warm_started and init_from is not None:
             self._warm_start(init_from)
         self.out.mkdir(parents=True, exist_ok=True)
         if r.is_main and (self.out / "checkpoints").is_dir():
@@ -161,13 +161,16 @@ class Trainer:
                                          seed=int(np.random.SeedSequence((seed, 1)).generate_state(1)[0]))
 
         self.env_steps = self.updates = self.episodes = 0
+        agent = self.agent
         if getattr(cfg.agent, "bf16", False) == "auto":  # a choice timed on this machine: say which, as it changes speed
-            self.agent.bf16 = agree_on_bf16(self.agent.bf16, r)
-            self._notice(f"agent.bf16: auto chose {'bf16' if self.agent.bf16 else 'float32'} on {self.device.type} "
+            assert isinstance(agent, BF16Agent)  # a method with a bf16 switch has the attribute
+            agent.bf16 = agree_on_bf16(agent.bf16, r)
+            self._notice(f"agent.bf16: auto chose {'bf16' if agent.bf16 else 'float32'} on {self.device.type} "
                          "(bf16 where its timed matmul is faster, fbcpr.nn.precision)")
         if getattr(cfg.agent, "cuda_graph", False):  # a speed switch that does nothing off CUDA: say so
+            assert isinstance(agent, GraphedAgent)  # as is one with a cuda_graph switch
             self._notice("agent.cuda_graph: " + ("the update is captured in a CUDA graph after 3 eager updates (a "
-                         "capture that fails warns and runs eagerly)" if self.agent.graphed else
+                         "capture that fails warns and runs eagerly)" if agent.graphed else
                          f"ignored on {self.device.type}"))
         self.next_priority = tc.priority_every or math.inf
         self.next_eval = 0 if tc.eval_at_start and tc.eval_every else (tc.eval_every or math.inf)
@@ -203,10 +206,15 @@ class Trainer:
         self.csv_path = self.out / "metrics.csv"
         self._writer: Any = None  # SummaryWriter once created, False where tensorboard is missing
 
+    @property
+    def batching(self) -> BatchConfig:
+        """The method's `agent:` section, for the batch and window sizes that every method sets."""
+        return batch_config(self.cfg.agent)
+
     # --------------------------------------------------------------------------------- z for rollouts
     def _sample_rollout_z(self, n: int) -> torch.Tensor:
         """n rollout latents from the agent (FB-CPR's nu) given online states from the buffer and demo windows."""
-        L = self.cfg.agent.seq_length
+        L = self.batching.seq_length
         online = self.buffer.sample(self.rng, n, fields=("next_obs",))["next_obs"] if len(self.buffer) > 0 else None
         windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, n, L))
         return self.agent.rollout_z(n, online, windows)
@@ -285,7 +293,7 @@ class Trainer:
                         if self._halt():
                             break
                     ready = self._agree()
-                    if self.env_steps >= self._updates_from and ready >= self.cfg.agent.batch_size:
+                    if self.env_steps >= self._updates_from and ready >= self.batching.batch_size:
                         for _ in range(tc.updates_per_rollout):
                             if self._halt():
                                 break
@@ -359,7 +367,7 @@ class Trainer:
 
     def sample_batch(self) -> tuple[dict[str, Any], torch.Tensor]:
         """One update's draw, as training takes it: a replay batch and expert windows of the motion library."""
-        a = self.cfg.agent
+        a = self.batching
         if self.batches is not None:
             batch, windows = self.batches.sample(a.batch_size, a.batch_size // a.seq_length, a.seq_length)
         else:
@@ -375,11 +383,13 @@ class Trainer:
         """train.demonstration_share: the batch's first rows drawn (with replacement) from the demonstrations held
         apart; "demo" marks them, "demo_next" those whose demonstration goes on, with its next action in
         "demo_next_action", and "demo_target" holds their behaviour-cloning targets (zeros elsewhere)."""
+        demos = self.demos
+        assert demos is not None  # held apart whenever train.demonstration_share is set
         size = len(batch["obs"])
         k = round(self.cfg.train.demonstration_share * size)
-        idx = torch.as_tensor(self.rng.integers(0, len(self.demos["obs"]), size=k), device=batch["obs"].device)
+        idx = torch.as_tensor(self.rng.integers(0, len(demos["obs"]), size=k), device=batch["obs"].device)
         out = dict(batch)
-        for key, rows in self.demos.items():
+        for key, rows in demos.items():
             rest = batch[key][k:] if key in batch else rows.new_zeros((size - k, *rows.shape[1:]))
             out[key] = torch.cat([rows[idx].to(rest.dtype), rest])
         return out
@@ -453,7 +463,7 @@ class Trainer:
         rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
         failed = False
         try:  # under torchrun each rank tracks its share of the clips
-            scores = tracking_scores(self.agent.model, self.bundle, self.cfg.agent.seq_length, tc.priority_max_clips,
+            scores = tracking_scores(self.agent.model, self.bundle, self.batching.seq_length, tc.priority_max_clips,
                                      self.cfg.env.max_episode_steps, rng, stop=self._halt, shard=(r.rank, r.world_size))
         except EMDUnavailable as err:  # a run must not die for a missing metric package
             warnings.warn(f"tracking evaluation and priority refresh skipped, priorities stay as they are: {err}",
@@ -856,6 +866,8 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
     run on this machine (torchrun's ranks), each holding a model and a replay shard. Returns whether the buffer is
     memory-mapped (over train.buffer_memmap_mb)."""
     tc = cfg.train
+    obs_dim, action_dim = cfg.model.obs_dim, cfg.model.action_dim
+    assert obs_dim is not None and action_dim is not None, "check_memory: set model.obs_dim and action_dim first"
     with torch.device("meta"):  # shapes only: no memory is allocated
         model = get_method(cfg.algorithm).model(cfg.model)
     params = sum(p.numel() for p in model.parameters())
@@ -866,7 +878,7 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
         raise ConfigError(f"model: {params / 1e6:,.0f}M parameters need about {need / 2**30:,.1f} GiB to train, "
                           f"more than the {have / 2**30:,.1f} GiB of {device.type} memory; lower model.hidden_dim, "
                           "model.hidden_layers or model.preset")
-    specs = transition_specs(cfg.model.obs_dim, cfg.model.action_dim, getattr(model, "z_dim", 0), nq, nv)
+    specs = transition_specs(obs_dim, action_dim, getattr(model, "z_dim", 0), nq, nv)
     buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) * copies
     memmap = buffer > tc.buffer_memmap_mb * 2**20
     folder = next(p for p in (out, *out.absolute().parents) if p.exists())
@@ -893,7 +905,7 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
                           "machine has; on the CPU the copy only costs memory: set it to false")
     # a full disk fails here, in one line, before TensorBoard's writer thread would fail with a long traceback.
     # One checkpoint: weights, two Adam moments and targets (4 copies), the reward sample, the buffer if saved.
-    ckpt = params * 16 + tc.reward_buffer_size * (cfg.model.obs_dim + nq + nv) * 4 + (buffer if tc.save_buffer else 0)
+    ckpt = params * 16 + tc.reward_buffer_size * (obs_dim + nq + nv) * 4 + (buffer if tc.save_buffer else 0)
     if ckpt + (buffer if memmap else 0) > free:
         raise CheckpointError(f"{folder}: {free / 2**20:,.0f} MiB free on disk, but one checkpoint of this run needs "
                               f"about {ckpt / 2**20:,.0f} MiB" + (f" beside the {buffer / 2**20:,.0f} MiB "
@@ -977,7 +989,9 @@ def _inf(x: float | None) -> float:
 
 
 def _np_global_state() -> list[Any]:
-    name, keys, pos, has_gauss, cached = np.random.get_state()
+    state = np.random.get_state()
+    assert isinstance(state, tuple)  # the global RandomState is an MT19937, whose legacy state is a tuple
+    name, keys, pos, has_gauss, cached = state
     return [name, keys.tolist(), int(pos), int(has_gauss), float(cached)]
 
 

@@ -56,6 +56,7 @@ class Distiller:
         idx = d.episode_start[ep][:, None] + torch.minimum(rel, n[:, None] - 1)
         frames, targets, mask = d.obs[idx], d.action[idx[:, :L]], rel[:, :L] < n[:, None]
         if d.method == "lfpc":
+            assert d.jacobian is not None  # LFPC data is checked to hold its Jacobians
             delta = torch.randn(frames.shape, generator=self.gen) * d.perturb_std
             frames = frames + delta
             feedback = torch.einsum("blad,bld->bla", d.jacobian[idx[:, :L]].float(), delta[:, :L])

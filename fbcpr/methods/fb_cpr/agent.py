@@ -74,6 +74,7 @@ class FBCPRAgent:
         self.anchor = ActorAnchor(self.model, len(self.held_rewards)) if agent_cfg.anchor_actor > 0 else None
         self.energy: ConditionalEnergy | None = None  # the NEAR regulariser, which replaces the discriminator's training
         if agent_cfg.regulariser == "near":
+            assert model_cfg.obs_dim is not None  # FBCPRModel above refuses a config without it
             self.energy = ConditionalEnergy(model_cfg.obs_dim, model_cfg.z_dim, agent_cfg.near).to(self.device)
             del trained["discriminator"]
             trained["energy"] = (self.energy.energy, agent_cfg.near.lr)
@@ -96,8 +97,10 @@ class FBCPRAgent:
 
     @classmethod
     def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> FBCPRAgent:
-        return cls(cfg.model, cfg.agent, device, seed,
-                   task_reward=bundle.task_reward if cfg.agent.anchor_rewards else None)
+        agent_cfg = cfg.agent
+        assert isinstance(agent_cfg, AgentConfig)  # what a config of algorithm fb_cpr reads its agent section as
+        return cls(cfg.model, agent_cfg, device, seed,
+                   task_reward=bundle.task_reward if agent_cfg.anchor_rewards else None)
 
     @property
     def z_dim(self) -> int:
@@ -302,13 +305,15 @@ class FBCPRAgent:
             if sample is None:
                 raise ConfigError("agent.anchor_rewards: the --init-from checkpoint has no reward-inference sample, "
                                   "so there are no reward prompts to hold")
+            # anchor_rewards needs anchor_actor (the config checks it), and the anchor then holds a prompt per task
+            assert self.anchor is not None and self.anchor.prompts is not None
             self.anchor.prompts.copy_(reward_prompts(self.model, sample, self.held_rewards))
 
     @torch.no_grad()
     def soft_update(self) -> None:
         """Polyak averaging target <- (1 - tau) target + tau online, one fused op over all tensors."""
-        tgt = [p for k in TARGETS for p in self.targets[k].parameters()]
-        src = [p for k in TARGETS for p in getattr(self.model, k).parameters()]
+        tgt: list[Tensor] = [p for k in TARGETS for p in self.targets[k].parameters()]
+        src: list[Tensor] = [p for k in TARGETS for p in getattr(self.model, k).parameters()]
         torch._foreach_lerp_(tgt, src, self.cfg.tau)
 
     # ------------------------------------------------------------------------------------- state
