@@ -37,6 +37,7 @@ def train_for(trainer: Any, seconds: float | None, steps: int | None) -> dict[st
     every env step and update, so the budget holds to within one update plus the final checkpoint)."""
     if steps is not None:
         return trainer.run(max_env_steps=steps)
+    assert seconds is not None, "train_for: give seconds or steps"
     return trainer.run(deadline=time.monotonic() + seconds)
 
 

@@ -129,10 +129,12 @@ def eval_command(
     from fbcpr.inference.bfm import BFM
     from motions.library import MotionLibrary
 
-    agents = [load_tracker(c) for c in ckpts]
-    for c, agent in zip(ckpts, agents):
+    loaded = [load_tracker(c) for c in ckpts]
+    agents: list[NPMPAgent] = []
+    for c, agent in zip(ckpts, loaded):
         if not isinstance(agent, NPMPAgent):
             raise ValueError(f"{c}: not an NPMP checkpoint (`fbcpr eval` scores a BFM)")
+        agents.append(agent)
     recorded = {str(a.info.get("expert", "pretrained")) for a in agents}
     if expert is None and len(recorded) > 1:
         raise ValueError(f"the NPMPs were distilled from different experts {sorted(recorded)}: choose one with --expert")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 import tempfile
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 import torch
@@ -71,9 +71,11 @@ class BFM:
         self.source = source
         self._reward_buffer = reward_buffer
         self._checkpoint = checkpoint  # lazy access to reward_buffer.safetensors
-        stored = checkpoint.reward_prompts() if checkpoint is not None and reward_prompts is None else None
         #: z's of named tasks inferred at export from more states than the checkpoint keeps (`fbcpr.inference.reward_prompts`)
-        self.reward_prompts = reward_prompts if stored is None else load_reward_prompts(*stored, model, checkpoint.path)
+        self.reward_prompts = reward_prompts
+        stored = checkpoint.reward_prompts() if checkpoint is not None and reward_prompts is None else None
+        if checkpoint is not None and stored is not None:
+            self.reward_prompts = load_reward_prompts(*stored, model, checkpoint.path)
         self._prompt: Prompt | None = None
         self._samples: tuple[tuple[int, int], dict[str, np.ndarray], torch.Tensor] | None = None
         self._buffer_checked = False
@@ -94,6 +96,7 @@ class BFM:
         if ckpt.algorithm != "fb_cpr":
             raise CheckpointError(f"{path}: holds a {ckpt.algorithm} agent, not a prompt-able FB-CPR model "
                                   "(evaluate it with `fbcpr eval`, which runs any agent)")
+        assert isinstance(ckpt.model, FBCPRModel)  # the model of an fb_cpr checkpoint
         return cls(ckpt.model, ckpt.config, source=str(path_or_repo_id), checkpoint=ckpt)
 
     @classmethod
@@ -108,11 +111,15 @@ class BFM:
 
     @property
     def obs_dim(self) -> int:
-        return int(self.model.cfg.obs_dim)
+        obs_dim = self.model.cfg.obs_dim
+        assert obs_dim is not None  # a built model has its sizes
+        return int(obs_dim)
 
     @property
     def action_dim(self) -> int:
-        return int(self.model.cfg.action_dim)
+        action_dim = self.model.cfg.action_dim
+        assert action_dim is not None
+        return int(action_dim)
 
     @property
     def z_dim(self) -> int:
@@ -203,6 +210,15 @@ class BFM:
         a = a[0] if single else a
         return a if as_torch else a.cpu().numpy()
 
+    @overload
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: Literal[True]) -> torch.Tensor: ...
+
+    @overload
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: Literal[False] = False) -> np.ndarray: ...
+
+    @overload
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: bool) -> np.ndarray | torch.Tensor: ...
+
     def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: bool = False) -> np.ndarray | torch.Tensor:
         """B(s) for observations (obs_dim,) or (N, obs_dim) -> (N, z_dim), in chunks, under inference mode."""
         o = self._tensor(obs, "obs")
@@ -268,10 +284,10 @@ class BFM:
             buf = self.reward_samples(reward_samples, seed=0)[0]
         cfg = portable_config(self.config) if isinstance(self.config, Config) else self.config
         prompts = self.reward_prompts  # dropped if the weights changed since they were inferred
-        keep = prompts is not None and prompts.digest == weights_digest(self.model)
+        keep = prompts if prompts is not None and prompts.digest == weights_digest(self.model) else None
         return save_checkpoint(path, self.model, cfg, reward_buffer=buf,
                                reward_dtype=torch.float16 if half else torch.float32, reward_obs=not states_only,
-                               reward_prompts=prompts.to_tensors() if keep else None)
+                               reward_prompts=keep.to_tensors() if keep is not None else None)
 
     def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None, repo_id: str | None = None) -> Path:
         """The folder `push_to_hub` uploads: an inference checkpoint plus a README.md model card."""

@@ -51,12 +51,15 @@ def with_reward_states(model: BFM, donors: Sequence[BFM]) -> BFM:
     z size, or has no states."""
     if not donors:
         raise InputError("with_reward_states: give at least one model to take the reward states of")
+    given = []
     for donor in donors:
         check_compatible(model, donor, f"take the reward states of {donor.source} for {model.source}",
                          same_networks=False)
-        if donor.reward_buffer is None:
+        states = donor.reward_buffer
+        if states is None:
             raise CheckpointError(f"{donor.source} has no reward-inference states to give")
-    buffer = {k: np.concatenate([np.asarray(d.reward_buffer[k], np.float32) for d in donors]) for k in REWARD_KEYS}
+        given.append(states)
+    buffer = {k: np.concatenate([np.asarray(s[k], np.float32) for s in given]) for k in REWARD_KEYS}
     names = " and ".join(str(d.source) for d in donors)
     return BFM(model.model, model.config, reward_buffer=buffer,
                source=f"{model.source} with the reward states of {names}")

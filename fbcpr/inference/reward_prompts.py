@@ -18,7 +18,7 @@ import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import torch
@@ -28,8 +28,11 @@ from fbcpr.core.errors import InputError, PromptError
 from fbcpr.inference.prompt import PromptableModel, regress_reward, reward_fn
 from fbcpr.nn.latents import TEMPERATURE
 
+if TYPE_CHECKING:
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
+
 #: The inference method stored prompts were made with: `Prompt.reward`'s default.
-METHOD = "weighted"
+METHOD: Final = "weighted"
 #: Most states prompts are inferred from at once: B of a million states takes 1 GB beside their 1.4 GB of
 #: observations, and two pools of five own-states draws (250,000 states each) already agree to a cosine
 #: of 0.95 (section 43).
@@ -87,7 +90,7 @@ def infer_reward_prompts(bfm: PromptableModel, tasks: Sequence[str]) -> RewardPr
     return RewardPrompts(z, int(b.shape[0]), weights_digest(bfm.model))
 
 
-def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], model: torch.nn.Module,
+def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], model: FBCPRModel,
                         where: Path) -> RewardPrompts:
     """Check stored prompts against the model they were loaded with; CheckpointError naming `where` and the
     problem (other weights, other settings, a wrong shape, NaN, or a name the task registry does not know)."""

@@ -108,6 +108,7 @@ class Timeline:
         segments = []
         for item, seconds in items:
             steps = max(1, int(round(seconds * fps)))
+            kind: Kind
             if isinstance(item, np.ndarray):
                 if item.shape != (prompt.bfm.z_dim,):
                     raise PromptError(f"timeline z must have shape ({prompt.bfm.z_dim},), got {item.shape}")
