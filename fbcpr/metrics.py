@@ -5,8 +5,8 @@ All distances use d_smpl: the Euclidean distance between the pose parts (observa
 body positions and orientations; velocities ignored). Inputs may be full observations (..., 358) or pose
 parts (..., 214).
 
-POT is imported only when an EMD is computed, so training runs where it is not installed (the GPU lease
-image, lab/gpu): there the trainer's tracking EMD falls back to an exact assignment solver.
+POT is imported only when an EMD is computed, so training runs where it is not installed (e.g. a minimal GPU
+image): there the trainer's tracking EMD falls back to an exact assignment solver.
 """
 from __future__ import annotations
 

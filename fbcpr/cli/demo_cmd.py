@@ -21,7 +21,7 @@ from fbcpr.cli.common import cli_errors, console
 
 DEFAULT_CONFIG = "quickstart.yaml"
 #: One line on what the shipped model is, for the demo's verdict (its model card has the details).
-PRETRAINED_NOTE = ("FB-CPR, small networks, trained on 2 CPU cores, then continued six times on leased GPUs and "
+PRETRAINED_NOTE = ("FB-CPR, small networks, trained on 2 CPU cores, then continued six times on a GPU and "
                    "averaged, on the DeepMimic clips and our synthetic clips")
 
 
@@ -106,7 +106,7 @@ def demo_command(
     score = f"It beats both floor baselines on {wins} of {len(rows['FB-CPR'])} scores."
     if trained is None:
         verdict = (f"The pretrained model ({PRETRAINED_NOTE}). {score} Its model card "
-                   "(fbcpr/pretrained/README.md) and lab/log.md say what it can and cannot do yet.")
+                   "(fbcpr/pretrained/README.md) says what it can and cannot do yet.")
     else:
         verdict = (f"This model trained for {trained['minutes']:.1f} min ({trained['env_steps']:,} env steps); the "
                    f"paper trains for 30M env steps. {score} A few-minute model is a smoke test of the pipeline, "

@@ -91,7 +91,7 @@ def distill_command(
         path, done = distill(out, data, cfg, steps, info, resume=resume, checkpoint_every=checkpoint_every,
                              on_update=report)
     state = "stopped by a signal at" if done < steps else "finished:"
-    console.print(f"{state} {done:,} gradient steps ({time.time() - start:.0f} s this session); checkpoint: {path}")
+    console.print(f"{state} {done:,} gradient steps ({time.time() - start:.0f} s in this command); checkpoint: {path}")
 
 
 def _collect(expert: str, motions: Path, method: str, rollouts: int, noise: float, perturb: float, max_steps: int,

@@ -167,7 +167,7 @@ class TrainConfig:
     keep_best_mode: str = _f("max", _check(lambda v: v in ("max", "min"), "must be 'max' or 'min'"))
     # minimum values an evaluation must reach to compete for checkpoints/best, e.g. {eval/upright_s: 10,
     # eval/upright_pushed_s: 10}: the best walk among evaluations that still stand, not the best walk of a run whose
-    # stand comes and goes (lab/log.md section 24)
+    # stand comes and goes
     keep_best_requires: dict[str, float] = _f({}, _check(lambda d: all(k.startswith("eval/") for k in d),
                                                          "must name eval/ metrics"))
     checkpoint_every: int = _f(1_000_000, NON_NEGATIVE)
@@ -180,9 +180,9 @@ class TrainConfig:
     # is, so that with a frozen B (agent.freeze_backward) reward prompts infer the loaded model's z's
     keep_reward_sample: bool = _f(False)
     # humanoid: a folder of demonstrations with actions (motions.demonstrations, e.g. the sampling planner's getting
-    # up, lab/experiments/getup_planner.py --save) whose transitions go into the replay buffer when a run starts (fresh or
-    # --init-from), each demonstration_copies times: transitions that exploration has not found. As plain transitions
-    # they made TD3's critic diverge in lab/log.md section 32
+    # up, lab/experiments/getup_planner.py --save) whose transitions go into the replay buffer when a run starts (fresh
+    # or --init-from), each demonstration_copies times: transitions that exploration has not found (as plain
+    # transitions they made TD3's critic diverge: see demonstration_share)
     demonstrations: str | None = _f(None)
     demonstration_copies: int = _f(1, _range(1, 1000))
     # > 0: the demonstrations are held apart from the replay buffer (never overwritten) and this share of every
@@ -190,7 +190,7 @@ class TrainConfig:
     demonstration_share: float = _f(0.0, _range(0.0, 0.5))
     torch_threads: int = _f(0, _range(0, 1024))
     # MuJoCo threads of the training envs; 0: all cores, split between the ranks of a torchrun on one machine.
-    # Set it when other runs share the machine (several seeds on one leased GPU: lab/gpu)
+    # Set it when other runs share the machine (e.g. several seeds on one GPU)
     env_threads: int = _f(0, _range(0, 1024))
     dist_timeout_s: float = _f(600.0, _range(1.0, 86_400.0))  # torchrun runs: a rank gone this long is an error
     dist_backend: str = _f("auto", _check(lambda v: v in ("auto", "nccl", "gloo"), "must be auto, nccl or gloo"))

@@ -1,7 +1,7 @@
 """Zero-shot evaluation on the point mass: goal reaching, reward maximisation and demo imitation.
 
 The same protocol runs a trained model, an untrained one, or a uniform random policy (model=None), so
-the numbers in lab/log.md compare like with like. z inference follows App. C.5.3: z = B(goal),
+their numbers compare like with like. z inference follows App. C.5.3: z = B(goal),
 z_r ∝ Σ exp(10 r(s)) r(s) B(s) over reward-labelled states, and z_t ∝ Σ_{j=t+1}^{t+L} B(s_j) for tracking.
 """
 from __future__ import annotations

@@ -275,8 +275,8 @@ class BFM:
 
         `reward_samples` keeps a seeded subsample of the reward buffer, `half` stores it as float16 and
         `states_only` drops its observations, which loading rebuilds from the states: the compact form a
-        checkpoint that ships with a package or an app needs (lab/log.md measures what a smaller buffer
-        costs in prompt quality). Stored reward prompts are written too, unless the weights changed since."""
+        checkpoint that ships with a package or an app needs (a smaller buffer costs some prompt quality).
+        Stored reward prompts are written too, unless the weights changed since."""
         buf = self.reward_buffer
         if buf is not None and reward_samples is not None:
             if reward_samples < 1:

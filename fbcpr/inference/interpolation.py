@@ -4,11 +4,11 @@ A run continued from a model (`--init-from`) can gain skills (balance under push
 (some reward tasks). Averaging the weights of the two, tensor by tensor, often keeps most of both: Wortsman et al.
 (2022, "Robust fine-tuning of zero-shot models", WiSE-FT) show this for a model and its fine-tuned copy, which
 stay in one basin of the loss. It only makes sense for two checkpoints where one was trained on from the other;
-two independent runs have unrelated weights and their average is noise. lab/log.md sections 19-20 measure it.
+two independent runs have unrelated weights and their average is noise.
 
 A continuation's reward states are its own last replay states, and prompts inferred from them can be worse than
-from its base's: section 41's average of six continuations stood 5.5 s under the stand prompt with them and the
-whole 10 s with the shipped model's. `with_reward_states` pairs one model's weights with the states of one or more
+from its base's: an average of six continuations stood 5.5 s under the stand prompt with them and the whole 10 s
+with the shipped model's. `with_reward_states` pairs one model's weights with the states of one or more
 others.
 """
 from __future__ import annotations

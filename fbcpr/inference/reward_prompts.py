@@ -2,10 +2,9 @@
 
 A reward prompt is a weighted regression over reward-inference states, z ∝ Σ exp(τ r) r B(s) (`fbcpr.inference.prompt`).
 With τ = 10 most of the weight falls on the few states of highest reward, so which states a sample holds moves z:
-two draws of 50,000 of one model's own states walked 70.9 and 85.8 under the walk prompt (lab/log.md section
-42). A checkpoint that ships keeps ~50k states within its size budget, while a named task's z is z_dim numbers (64):
-`infer_reward_prompts` regresses them on every state given to the export (500,000 from ten rollout runs in section 43),
-and the checkpoint stores them in reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the
+two draws of 50,000 of one model's own states walked 70.9 and 85.8 under the walk prompt. A checkpoint that ships
+keeps ~50k states within its size budget, while a named task's z is z_dim numbers (64): `infer_reward_prompts`
+regresses them on every state given to the export (e.g. 500,000 from ten rollout runs), and the checkpoint stores them in reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the
 stored z for a named task under the default inference settings; a user's reward, a combined name or other settings
 are inferred from the subsample as before.
 
@@ -34,8 +33,7 @@ if TYPE_CHECKING:
 #: The inference method stored prompts were made with: `Prompt.reward`'s default.
 METHOD: Final = "weighted"
 #: Most states prompts are inferred from at once: B of a million states takes 1 GB beside their 1.4 GB of
-#: observations, and two pools of five own-states draws (250,000 states each) already agree to a cosine
-#: of 0.95 (section 43).
+#: observations, and two pools of five own-states draws (250,000 states each) already agree to a cosine of 0.95.
 MAX_STATES = 1_000_000
 #: Most prompts a file may store (the registry names 54 tasks): each one's name is parsed on load.
 MAX_PROMPTS = 4096

@@ -184,7 +184,7 @@ class Trainer:
         self._agreed_stop = False  # under torchrun: the stop decision every rank took together at the last phase end
         self._deadline = math.inf  # time.monotonic() at which run() stops (its `deadline`)
         self._saved_at: int | None = None  # env steps of the checkpoint on disk (none yet)
-        self._wall_before = 0.0  # seconds of training before this run() call, summed over the run's sessions
+        self._wall_before = 0.0  # seconds of training before this run() call, summed over the run's resumes
         self._run_t0: float | None = None  # time.perf_counter() at the start of the run() call in progress
         # train.keep_best (rank 0): the best value of the metric so far and the checkpoint folder it was measured at
         self.best: tuple[float, str] | None = None
@@ -316,7 +316,7 @@ class Trainer:
 
     @property
     def wall_s(self) -> float:
-        """Seconds this run has trained, over all its sessions (resumes add to it): the x axis of wall-clock
+        """Seconds this run has trained, over all its starts (resumes add to it): the x axis of wall-clock
         learning curves (`wall_s` in metrics.csv)."""
         return self._wall_before + (time.perf_counter() - self._run_t0 if self._run_t0 is not None else 0.0)
 
