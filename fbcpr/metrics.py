@@ -116,7 +116,8 @@ def speed_profile(positions: np.ndarray, fps: float) -> np.ndarray:
     return np.linalg.norm(np.diff(p, axis=0), axis=-1) * fps
 
 
-def sparc(speed: np.ndarray, fps: float, pad_level: int = 4, cutoff_hz: float = 10.0, amp_threshold: float = 0.05) -> float:
+def sparc(speed: np.ndarray, fps: float, pad_level: int = 4, cutoff_hz: float = 10.0,
+          amp_threshold: float = 0.05) -> float:
     """Spectral arc length (SPARC, Balasubramanian et al. 2015): minus the arc length of the normalised magnitude
     spectrum of a speed profile, up to the adaptive cut-off where the spectrum falls below `amp_threshold`
     (at most `cutoff_hz`). Closer to 0 is smoother; compare an agent's with its expert's."""

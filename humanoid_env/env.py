@@ -1,9 +1,10 @@
 """Gymnasium environment for one SMPL humanoid: PD control at 30 Hz on a 450 Hz MuJoCo simulation.
 
-An action in [-1, 1]^69 is a PD target placed on each joint's range (the actuators' ctrlrange equals the
-joint range) by the env's action mapping (`humanoid_env.actions`: `rest`, the default, or `mid`). One step runs `mujoco.mj_step` for 15 substeps; the observation comes from the one observation
-function (`humanoid_env.observation`). A simulation that diverges (MuJoCo warnings, NaN or huge velocities)
-ends the episode with the last good observation and `info["diverged"] = True`; nothing raises.
+An action in [-1, 1]^69 is a PD target placed on each joint's range (the actuators' ctrlrange equals the joint range) by
+the env's action mapping (`humanoid_env.actions`: `rest`, the default, or `mid`). One step runs `mujoco.mj_step` for 15
+substeps; the observation comes from the one observation function (`humanoid_env.observation`). A simulation that
+diverges (MuJoCo warnings, NaN or huge velocities) ends the episode with the last good observation and
+`info["diverged"] = True`; nothing raises.
 """
 from __future__ import annotations
 
@@ -102,7 +103,8 @@ def check_state(qpos: Any, qvel: Any, n: int | None = None) -> tuple[np.ndarray,
     qp, qv = np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
     want_p, want_v = ((NQ,), (NV,)) if n is None else ((n, NQ), (n, NV))
     if qp.shape != want_p or qv.shape != want_v:
-        raise InvalidStateError(f"reset options: expected qpos {want_p} and qvel {want_v}, got {qp.shape} and {qv.shape}")
+        raise InvalidStateError(f"reset options: expected qpos {want_p} and qvel {want_v}, got {qp.shape} and "
+                                f"{qv.shape}")
     if not (np.isfinite(qp).all() and np.isfinite(qv).all()):
         raise InvalidStateError("reset options: qpos and qvel must be finite (found NaN or inf)")
     return qp, qv
@@ -222,7 +224,8 @@ class HumanoidEnv(gym.Env):
         terminated = diverged
         if not diverged:
             if self.reward_fn is not None:
-                reward = float(self.reward_fn(obs[None], self._act[None].astype(np.float32), info["qpos"][None], info["qvel"][None])[0])
+                reward = float(self.reward_fn(obs[None], self._act[None].astype(np.float32), info["qpos"][None],
+                                              info["qvel"][None])[0])
             if self.termination_fn is not None:
                 terminated = bool(self.termination_fn(obs[None], info["qpos"][None], info["qvel"][None])[0])
         lain = bool(self._clock.step(info["qpos"][None, 2])[0])

@@ -55,7 +55,8 @@ def score_rows(results: dict[str, Any], reward: str, goal: str, clip: str) -> li
 def demo_command(
     train: bool = typer.Option(False, "--train", help="Train a model from scratch first instead of prompting the "
                                "shipped pretrained one (--config, --minutes, --steps, --device apply)."),
-    config: Path | None = typer.Option(None, "--config", help="Run config (default: the shipped fbcpr/configs/quickstart.yaml)."),
+    config: Path | None = typer.Option(None, "--config", help="Run config (default: the shipped "
+                                                             "fbcpr/configs/quickstart.yaml)."),
     minutes: float = typer.Option(5.0, "--minutes", min=0.05, help="Training time budget."),
     steps: int | None = typer.Option(None, "--steps", min=1, help="Train exactly this many env steps instead."),
     out: Path = typer.Option(Path("runs/demo"), "--out", help="Run directory (checkpoints, videos, summary)."),
@@ -84,7 +85,8 @@ def demo_command(
     else:
         given = [name for name, v in (("--config", config), ("--steps", steps), ("--device", device)) if v is not None]
         if given:
-            raise ValueError(f"{given[0]} applies to training: add --train, or leave it out to prompt the pretrained model")
+            raise ValueError(f"{given[0]} applies to training: add --train, or leave it out to prompt the pretrained "
+                             "model")
         console.rule("1/3 loading the pretrained model")
         bfm, trained = BFM.pretrained(), None
         out.mkdir(parents=True, exist_ok=True)
@@ -115,7 +117,8 @@ def demo_command(
     console.print(verdict)
     report = {"model": "pretrained" if trained is None else trained["checkpoint"], "training": trained,
               "videos": [str(v) for v in videos],
-              "scores": {name: [{"prompt": p, "metric": m, "value": v} for p, m, v, _ in r] for name, r in rows.items()},
+              "scores": {name: [{"prompt": p, "metric": m, "value": v} for p, m, v, _ in r]
+                         for name, r in rows.items()},
               "beats_floors": wins, "verdict": verdict}
     (out / "demo_summary.json").write_text(json.dumps(report, indent=1, default=float))
     console.print(f"summary written to [bold]{out / 'demo_summary.json'}[/]")

@@ -137,7 +137,8 @@ def eval_command(
         agents.append(agent)
     recorded = {str(a.info.get("expert", "pretrained")) for a in agents}
     if expert is None and len(recorded) > 1:
-        raise ValueError(f"the NPMPs were distilled from different experts {sorted(recorded)}: choose one with --expert")
+        raise ValueError(f"the NPMPs were distilled from different experts {sorted(recorded)}: choose one with "
+                         "--expert")
     expert = expert or recorded.pop()
     library = MotionLibrary.load(motions)
     with progress() as bar:

@@ -6,7 +6,8 @@ Layout of a checkpoint directory:
     manifest.json               format version, method (`algorithm`), library versions, sha256 and shapes of every file
     trainer_state.safetensors   optional: target nets, optimizer moments; JSON scalars/counters/RNG in its header
     reward_buffer.safetensors   optional: next_obs, qpos, qvel subsample for reward prompts (exports may store
-                                the states alone: next_obs is rebuilt from them on load, the env kind's observer in `fbcpr.core.registry.ENVS`)
+                                the states alone: next_obs is rebuilt from them on load, the env kind's observer
+                                in `fbcpr.core.registry.ENVS`)
     reward_prompts.safetensors  optional: the reward prompts (z) of the named tasks, inferred at export from more
                                 states than reward_buffer keeps (`fbcpr.inference.reward_prompts`)
     replay_buffer.safetensors   optional: the whole replay buffer (exact resume)
@@ -45,7 +46,8 @@ from humanoid_env.actions import LEGACY_ACTION_MAPPING
 FORMAT = "fbcpr-checkpoint"
 FORMAT_VERSION = 1
 MODEL_FILE, CONFIG_FILE, MANIFEST_FILE = "model.safetensors", "config.yaml", "manifest.json"
-TRAINER_FILE, REWARD_FILE, REPLAY_FILE = "trainer_state.safetensors", "reward_buffer.safetensors", "replay_buffer.safetensors"
+TRAINER_FILE, REWARD_FILE = "trainer_state.safetensors", "reward_buffer.safetensors"
+REPLAY_FILE = "replay_buffer.safetensors"
 PROMPTS_FILE = "reward_prompts.safetensors"
 REWARD_KEYS = ("next_obs", "qpos", "qvel")
 STATE_KEYS = ("qpos", "qvel")

@@ -45,8 +45,8 @@ def _f(default: Any, check: Callable[[Any], str | None] | None = None, **kw: Any
 
 @dataclass
 class MethodConfig:
-    """Base of a method's `agent:` section (config_from_dict puts the named method's own there). `validate_run` checks what the section needs of the rest of the run
-    (other sections), after every section was read on its own."""
+    """Base of a method's `agent:` section (config_from_dict puts the named method's own there). `validate_run` checks
+    what the section needs of the rest of the run (other sections), after every section was read on its own."""
 
     def validate_run(self, run: Config) -> None:
         """ConfigError naming the key when this method cannot run with `run`'s other sections."""
@@ -99,7 +99,8 @@ class EnvConfig:
     """Which environment and demonstrations; the trainer only sees what `fbcpr.envs.bundle.make_env` builds."""
 
     name: str = _f("humanoid")  # an env kind of the registry (`fbcpr.core.registry.ENVS`), checked on load
-    motions: str = _f("synthetic")  # humanoid: a folder of clips or one clip .npz; toy: "synthetic" (all demos) or demo names
+    # humanoid: a folder of clips or one clip .npz; toy: "synthetic" (all demos) or demo names
+    motions: str = _f("synthetic")
     fall_prob: float = _f(0.2, PROB)
     stand_prob: float = _f(0.0, PROB)  # humanoid: share of training episodes that start from the standing rest pose
     # humanoid: share of training episodes that start on a frame of the clips named in focus_clips (reference-state
@@ -111,7 +112,8 @@ class EnvConfig:
     # that works, velocities included, where a mocap clip's frames are only kinematic
     focus_motions: str | None = _f(None)
     max_episode_steps: int = _f(300, _range(1, 10**7))
-    action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
+    action_mapping: str = _f(DEFAULT_ACTION_MAPPING,
+                             _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
     # humanoid: truncate a training episode (not terminate: no reward or objective changes) once the pelvis has
     # been below 0.6 m this many seconds in a row, so the buffer holds more upright states and fewer of lying
     # still; 0 = off (the paper). Evaluation episodes always run their full length.
@@ -133,7 +135,8 @@ class TrainConfig:
     """Online loop (Tables 3, 4, 9): rollouts, update ratio, buffer, priorities, logging, checkpoints."""
 
     seed: int = _f(0, NON_NEGATIVE)
-    device: str = _f("cpu", _check(lambda v: v == "cpu" or v.startswith("cuda") or v == "auto", "must be cpu, cuda[:i] or auto"))
+    device: str = _f("cpu", _check(lambda v: v == "cpu" or v.startswith("cuda") or v == "auto",
+                                   "must be cpu, cuda[:i] or auto"))
     total_env_steps: int = _f(30_000_000, POSITIVE)
     num_envs: int = _f(50, _range(1, 4096))
     warmup_steps: int = _f(50_000, NON_NEGATIVE)

@@ -1,8 +1,9 @@
 """What the benchmark evaluates: any object with `act` plus the three prompt functions.
 
-Built in: the floor baselines RandomAgent and ZeroAgent (they ignore z). A loaded `fbcpr.BFM` is an Agent as
-it is; an NPMP checkpoint is an `fbcpr.apps.npmp.agent.NPMPAgent` (tracking only); a single-task checkpoint (TD3, on a task or an imitation reward) is wrapped as a `SingleTaskAgent`, which is
-evaluated on its own task. Later baselines plug in by offering the same methods.
+Built in: the floor baselines RandomAgent and ZeroAgent (they ignore z). A loaded `fbcpr.BFM` is an Agent as it is; an
+NPMP checkpoint is an `fbcpr.apps.npmp.agent.NPMPAgent` (tracking only); a single-task checkpoint (TD3, on a task or an
+imitation reward) is wrapped as a `SingleTaskAgent`, which is evaluated on its own task. Later baselines plug in by
+offering the same methods.
 """
 from __future__ import annotations
 

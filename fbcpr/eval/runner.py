@@ -267,7 +267,8 @@ def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = Non
     if tasks:
         chosen = _split_names(tasks, motions, wanted)
     elif single is not None:
-        chosen = {"reward": [single.task] if single.task else [], "goal": [], "tracking": clip_names if imitation else []}
+        chosen = {"reward": [single.task] if single.task else [], "goal": [],
+                  "tracking": clip_names if imitation else []}
     else:
         chosen = {"reward": list(TASKS), "goal": list(GOALS), "tracking": clip_names}
     results: dict[str, Any] = {"agent": agent_name or getattr(agent, "name", type(agent).__name__),

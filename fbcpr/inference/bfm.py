@@ -71,7 +71,8 @@ class BFM:
         self.source = source
         self._reward_buffer = reward_buffer
         self._checkpoint = checkpoint  # lazy access to reward_buffer.safetensors
-        #: z's of named tasks inferred at export from more states than the checkpoint keeps (`fbcpr.inference.reward_prompts`)
+        #: z's of named tasks inferred at export from more states than the checkpoint keeps
+        #: (`fbcpr.inference.reward_prompts`)
         self.reward_prompts = reward_prompts
         stored = checkpoint.reward_prompts() if checkpoint is not None and reward_prompts is None else None
         if checkpoint is not None and stored is not None:
@@ -178,7 +179,8 @@ class BFM:
         return self._prompt
 
     # --------------------------------------------------------------------------------- inference
-    def act(self, obs: ArrayLike, z: ArrayLike, mean: bool = True, generator: torch.Generator | None = None) -> ArrayLike:
+    def act(self, obs: ArrayLike, z: ArrayLike, mean: bool = True,
+            generator: torch.Generator | None = None) -> ArrayLike:
         """Actions in [-1, 1] for obs (obs_dim,) or (N, obs_dim) and z (z_dim,) or (N, z_dim).
 
         Returns the kind of `obs` (numpy or torch) with its batch convention; a single z is shared by a batch.
@@ -289,7 +291,8 @@ class BFM:
                                reward_dtype=torch.float16 if half else torch.float32, reward_obs=not states_only,
                                reward_prompts=keep.to_tensors() if keep is not None else None)
 
-    def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None, repo_id: str | None = None) -> Path:
+    def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None,
+                     repo_id: str | None = None) -> Path:
         """The folder `push_to_hub` uploads: an inference checkpoint plus a README.md model card."""
         path = self.save(path)
         card = model_card(self, {**self.metrics, **(metrics or {})}, repo_id or "<owner>/<name>")
@@ -427,7 +430,8 @@ def _download(repo_id: str, revision: str | None, cache_dir: str | Path | None) 
         raise CheckpointError(f"{repo_id}: revision {revision!r} not found on the Hugging Face Hub") from None
     except (LocalEntryNotFoundError, IncompleteSnapshotError):
         raise CheckpointError(f"{repo_id}: no such checkpoint directory, and as a Hugging Face repo id it is not in "
-                              "the local cache (HF_HUB_OFFLINE=1 or no network): download it once while online") from None
+                              "the local cache (HF_HUB_OFFLINE=1 or no network): download it once while "
+                              "online") from None
     except HfHubHTTPError as err:
         raise CheckpointError(f"{repo_id}: Hugging Face Hub error ({err})") from None
 

@@ -135,8 +135,9 @@ class Prompt:
         temperature: float = TEMPERATURE,
         seed: int = 0,
     ) -> np.ndarray | None:
-        """The z the checkpoint stores for a named task (`fbcpr.inference.reward_prompts`), which `reward` returns under these
-        default settings; None for other settings, a callable, a combined or unstored name, or no stored prompts."""
+        """The z the checkpoint stores for a named task (`fbcpr.inference.reward_prompts`), which `reward` returns under
+        these default settings; None for other settings, a callable, a combined or unstored name, or no stored
+        prompts."""
         stored = self.bfm.reward_prompts
         if stored is None or not isinstance(task, str) or (method, n, temperature, seed) != (
                 "weighted", N_REWARD_SAMPLES, TEMPERATURE, 0):
@@ -261,7 +262,8 @@ def goal_observation(target: GoalSpec, obs_dim: int) -> np.ndarray:
             obs = arr
         else:
             raise PromptError(
-                f"a goal is a name, a qpos of shape ({NQ},) or an observation of shape ({obs_dim},); got shape {arr.shape}"
+                f"a goal is a name, a qpos of shape ({NQ},) or an observation of shape ({obs_dim},); "
+                f"got shape {arr.shape}"
             )
     obs = np.asarray(obs, dtype=np.float32).reshape(1, -1)
     if obs.shape[1] != obs_dim or not np.all(np.isfinite(obs)):

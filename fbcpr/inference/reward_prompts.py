@@ -1,12 +1,12 @@
 """Reward prompts of the named tasks inferred once, at export, from more states than a checkpoint keeps.
 
 A reward prompt is a weighted regression over reward-inference states, z ∝ Σ exp(τ r) r B(s) (`fbcpr.inference.prompt`).
-With τ = 10 most of the weight falls on the few states of highest reward, so which states a sample holds moves z:
-two draws of 50,000 of one model's own states walked 70.9 and 85.8 under the walk prompt. A checkpoint that ships
-keeps ~50k states within its size budget, while a named task's z is z_dim numbers (64): `infer_reward_prompts`
-regresses them on every state given to the export (e.g. 500,000 from ten rollout runs), and the checkpoint stores them in reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the
-stored z for a named task under the default inference settings; a user's reward, a combined name or other settings
-are inferred from the subsample as before.
+With τ = 10 most of the weight falls on the few states of highest reward, so which states a sample holds moves z: two
+draws of 50,000 of one model's own states walked 70.9 and 85.8 under the walk prompt. A checkpoint that ships keeps ~50k
+states within its size budget, while a named task's z is z_dim numbers (64): `infer_reward_prompts` regresses them on
+every state given to the export (e.g. 500,000 from ten rollout runs), and the checkpoint stores them in
+reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the stored z for a named task under the default
+inference settings; a user's reward, a combined name or other settings are inferred from the subsample as before.
 
 The z's belong to the weights they were inferred with: their metadata records a digest of the model's tensors,
 a checkpoint whose weights do not match it is refused on load, and a save after the weights changed drops them.

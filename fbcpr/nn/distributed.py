@@ -125,7 +125,8 @@ class Replicas:
         """Whether p.grad is the very tensor, unchanged, that the last average wrote (a new backward makes a new one,
         or bumps its version when it accumulates into it)."""
         mark, grad = self._synced.get(id(p)), p.grad
-        return mark is not None and grad is not None and mark[0]() is p and mark[1]() is grad and mark[2] == grad._version
+        return (mark is not None and grad is not None and mark[0]() is p and mark[1]() is grad
+                and mark[2] == grad._version)
 
     def average_gradients(self, params: list[Tensor]) -> None:
         """p.grad := mean over ranks of p.grad, one all-reduce per (dtype, device) over a flat buffer."""
@@ -138,7 +139,8 @@ class Replicas:
                 flat = torch.cat([g.reshape(-1) for g in grads]).to(self.device)
                 dist.all_reduce(flat)
                 flat = flat.div_(self.world_size).to(grads[0].device)
-                torch._foreach_copy_(grads, [f.view_as(g) for f, g in zip(flat.split([g.numel() for g in grads]), grads)])
+                parts = flat.split([g.numel() for g in grads])
+                torch._foreach_copy_(grads, [f.view_as(g) for f, g in zip(parts, grads)])
         for p in params:
             self._synced[id(p)] = (weakref.ref(p), weakref.ref(_grad(p)), _grad(p)._version)
 

@@ -1,17 +1,17 @@
 """Online training loop of every method (Algorithm 1 with the protocol of App. C.5.1 for FB-CPR).
 
-Each iteration collects `rollout_steps` transitions from `num_envs` parallel envs (random actions during
-warm-up, then the policy with z ~ nu resampled every `z_update_every` steps), then runs
-`updates_per_rollout` gradient steps. The agent is the config's `algorithm` (`fbcpr.core.registry`), driven
-through `fbcpr.core.protocols.OnlineAgent`; z is its rollout latent (empty for single-task agents). Every `priority_every` env steps the policy tracks the clips and the
-motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the
-model, the exact learner state (target nets, optimisers, normaliser, counters, RNG states, env states and
-optionally the replay buffer) and a reward-inference subsample of the buffer. SIGINT/SIGTERM ends the
-run at the next safe point with a final checkpoint. Under torchrun every rank runs this loop on its own envs and
-replay shard with a replica of the learner, kept identical by `fbcpr.nn.distributed` (gradients averaged over ranks,
-normaliser statistics merged); step counts and periods are global, and only rank 0 writes. Optional packages
-degrade with one warning each: without tensorboard metrics go to metrics.csv only; without any EMD solver (POT, or
-scipy for the equal-length fallback) tracking evaluation and the priority refresh are skipped.
+Each iteration collects `rollout_steps` transitions from `num_envs` parallel envs (random actions during warm-up, then
+the policy with z ~ nu resampled every `z_update_every` steps), then runs `updates_per_rollout` gradient steps. The
+agent is the config's `algorithm` (`fbcpr.core.registry`), driven through `fbcpr.core.protocols.OnlineAgent`; z is its
+rollout latent (empty for single-task agents). Every `priority_every` env steps the policy tracks the clips and the
+motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the model, the exact
+learner state (target nets, optimisers, normaliser, counters, RNG states, env states and optionally the replay buffer)
+and a reward-inference subsample of the buffer. SIGINT/SIGTERM ends the run at the next safe point with a final
+checkpoint. Under torchrun every rank runs this loop on its own envs and replay shard with a replica of the learner,
+kept identical by `fbcpr.nn.distributed` (gradients averaged over ranks, normaliser statistics merged); step counts and
+periods are global, and only rank 0 writes. Optional packages degrade with one warning each: without tensorboard metrics
+go to metrics.csv only; without any EMD solver (POT, or scipy for the equal-length fallback) tracking evaluation and the
+priority refresh are skipped.
 """
 from __future__ import annotations
 
@@ -162,7 +162,8 @@ class Trainer:
 
         self.env_steps = self.updates = self.episodes = 0
         agent = self.agent
-        if getattr(cfg.agent, "bf16", False) == "auto":  # a choice timed on this machine: say which, as it changes speed
+        # bf16 "auto" is a choice timed on this machine: say which, as it changes speed
+        if getattr(cfg.agent, "bf16", False) == "auto":
             assert isinstance(agent, BF16Agent)  # a method with a bf16 switch has the attribute
             agent.bf16 = agree_on_bf16(agent.bf16, r)
             self._notice(f"agent.bf16: auto chose {'bf16' if agent.bf16 else 'float32'} on {self.device.type} "
@@ -188,7 +189,8 @@ class Trainer:
         self._run_t0: float | None = None  # time.perf_counter() at the start of the run() call in progress
         # train.keep_best (rank 0): the best value of the metric so far and the checkpoint folder it was measured at
         self.best: tuple[float, str] | None = None
-        # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands for
+        # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands
+        # for
         self._carried: dict[str, np.ndarray] | None = None
         self._carried_weight = 0
         self._updates_from = tc.warmup_steps  # env steps before the first update (later after a buffer-less resume)
@@ -220,7 +222,8 @@ class Trainer:
         return self.agent.rollout_z(n, online, windows)
 
     def _add_demonstrations(self, folder: Path, copies: int) -> None:
-        """train.demonstrations: the folder's transitions, `copies` times, into the replay buffer (and its device copy)."""
+        """train.demonstrations: the folder's transitions, `copies` times, into the replay buffer (and its device
+        copy)."""
         from motions.demonstrations import DemonstrationError, load_demonstrations, transitions
 
         cfg = self.cfg
@@ -237,8 +240,8 @@ class Trainer:
         cloned = cfg.train.demonstration_share and getattr(cfg.agent, "bc_weight", 0.0)
         for d in demos:
             if d.action_mapping != cfg.env.action_mapping:
-                raise ConfigError(f"train.demonstrations: {d.clip.name} was taken under the {d.action_mapping!r} action "
-                                  f"mapping, the env uses {cfg.env.action_mapping!r}")
+                raise ConfigError(f"train.demonstrations: {d.clip.name} was taken under the {d.action_mapping!r} "
+                                  f"action mapping, the env uses {cfg.env.action_mapping!r}")
             if d.labels is not None and not cloned:
                 raise ConfigError(f"train.demonstrations: {d.clip.name} carries an expert's labels, which only "
                                   "behaviour cloning reads: set train.demonstration_share and agent.bc_weight")
@@ -251,7 +254,8 @@ class Trainer:
             dev = self.batches.device if self.batches is not None else torch.device("cpu")
             self.demos = {k: torch.as_tensor(block[k], dtype=torch.float32, device=dev) for k in self.agent.fields}
             # their marks (False and zeros on the replay rows): every row is one, "demo_next" where the demonstration
-            # goes on, with the demonstrator's next action (a target that bootstraps on it: agent.bootstrap_demo_actions)
+            # goes on, with the demonstrator's next action (a target that bootstraps on it:
+            # agent.bootstrap_demo_actions)
             nxt = np.concatenate([np.concatenate([d.actions[1:], d.actions[-1:]]) for d in demos])
             last = np.concatenate([np.arange(len(d.actions)) == len(d.actions) - 1 for d in demos])
             self.demos["demo"] = torch.ones(n, dtype=torch.bool, device=dev)
@@ -277,7 +281,8 @@ class Trainer:
         must check it."""
         tc = self.cfg.train
         self._deadline = math.inf if deadline is None else deadline
-        stop_at = tc.total_env_steps if max_env_steps is None else min(tc.total_env_steps, self.env_steps + max_env_steps)
+        stop_at = (tc.total_env_steps if max_env_steps is None
+                   else min(tc.total_env_steps, self.env_steps + max_env_steps))
         handlers = self._install_signals()
         t0, steps0 = time.perf_counter(), self.env_steps
         self._run_t0 = t0
@@ -478,7 +483,8 @@ class Trainer:
                     "eval/tracking_success": float(np.mean([s for _, s in scores.values()]))}
             if refresh_priorities:
                 fill = float(np.median(list(self.emd.values())))
-                self.bundle.library.set_priorities_from_emd({n: self.emd.get(n, fill) for n in self.bundle.library.names})
+                self.bundle.library.set_priorities_from_emd({n: self.emd.get(n, fill)
+                                                             for n in self.bundle.library.names})
         if custom is not None:
             out.update({f"eval/{k}": float(v) for k, v in custom(self.agent).items()})
         return out
@@ -729,7 +735,8 @@ class Trainer:
                 self.batches.load_state(tensors["device_batches_generator"])
             self.z = tensors["z"].to(self.device)
             self.z_age = tensors["z_age"].numpy().copy()
-            self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(), "qvel": tensors["env_qvel"].numpy()})
+            self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(),
+                                                         "qvel": tensors["env_qvel"].numpy()})
             self.bundle.env.np_random.bit_generator.state = meta["env_rng"]
             _episode_counter(self.bundle.env)[:] = tensors["env_episode_steps"].numpy()
         except KeyError as e:
@@ -900,8 +907,8 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
                           f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
                           "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
     if device.type == "cpu" and (0 if memmap else buffer) + model_ram + mirror * copies > ram:
-        raise ConfigError(f"train.device_buffer: its copy of the replay buffer needs {mirror * copies / 2**30:,.1f} GiB "
-                          f"of memory beside the buffer and the model, more than the {ram / 2**30:,.1f} GiB this "
+        raise ConfigError(f"train.device_buffer: its copy of the replay buffer needs {mirror * copies / 2**30:,.1f} "
+                          f"GiB of memory beside the buffer and the model, more than the {ram / 2**30:,.1f} GiB this "
                           "machine has; on the CPU the copy only costs memory: set it to false")
     # a full disk fails here, in one line, before TensorBoard's writer thread would fail with a long traceback.
     # One checkpoint: weights, two Adam moments and targets (4 copies), the reward sample, the buffer if saved.

@@ -8,9 +8,9 @@ A goal is a full state with zero velocities; `goal_obs` is its observation.
 from __future__ import annotations
 
 import difflib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cache
-from collections.abc import Mapping
 from typing import Any
 
 import mujoco

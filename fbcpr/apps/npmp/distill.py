@@ -117,7 +117,8 @@ def distill(out: Path, data: ExpertData, cfg: NPMPConfig, steps: int, info: dict
         info = {k: v for k, v in ckpt.info.items() if k not in ("config", "obs_dim", "action_dim", "metrics", "steps")}
     else:
         if (root / "latest").exists():
-            raise FileExistsError(f"{out} already holds an NPMP run; pass --resume to continue it or choose another --out")
+            raise FileExistsError(f"{out} already holds an NPMP run; pass --resume to continue it or choose another "
+                                  "--out")
         model = NPMPModel(cfg, data.obs.shape[1], data.action.shape[1])
         model.obs_normalizer.update(data.obs)  # fixed statistics of the expert states
         distiller = Distiller(model, data)

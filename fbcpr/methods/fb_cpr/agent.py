@@ -6,8 +6,8 @@ B(s') feeds the FB loss, the orthonormality loss, Sigma_B and the online-goal re
 embeddings of F and Q feed both their TD losses and the actor loss; the actor's next action and the
 target nets feed both TD targets; expert and online states go through the discriminator in one batch.
 The actor loss evaluates F and Q with detached weights, so one backward leaves them untouched by it.
-With `agent.regulariser: near` a z-conditioned energy (`fbcpr.rewards.near.conditional`) takes the discriminator's place:
-its DSM loss joins the one backward and its anchored energy is the critic's reward.
+With `agent.regulariser: near` a z-conditioned energy (`fbcpr.rewards.near.conditional`) takes the discriminator's
+place: its DSM loss joins the one backward and its anchored energy is the critic's reward.
 A continued run can hold B and the normaliser fixed (`agent.freeze_backward`) and anchor the actor on demonstration
 states (`agent.anchor_actor`, `fbcpr.methods.fb_cpr.anchor`), and on the batch's states under named reward prompts
 (`agent.anchor_rewards`).
@@ -72,7 +72,8 @@ class FBCPRAgent:
                               "the held reward prompts")
         self.held_rewards = {k: task_reward(k) for k in agent_cfg.anchor_rewards} if task_reward else {}
         self.anchor = ActorAnchor(self.model, len(self.held_rewards)) if agent_cfg.anchor_actor > 0 else None
-        self.energy: ConditionalEnergy | None = None  # the NEAR regulariser, which replaces the discriminator's training
+        # the NEAR regulariser, which replaces the discriminator's training
+        self.energy: ConditionalEnergy | None = None
         if agent_cfg.regulariser == "near":
             assert model_cfg.obs_dim is not None  # FBCPRModel above refuses a config without it
             self.energy = ConditionalEnergy(model_cfg.obs_dim, model_cfg.z_dim, agent_cfg.near).to(self.device)
@@ -355,4 +356,5 @@ class FBCPRAgent:
             self.generator.set_state(tensors["agent_generator"])
             self.num_updates = int(meta["num_updates"])
         except (KeyError, ValueError, RuntimeError) as e:
-            raise CheckpointError(f"trainer_state.safetensors: optimizer/generator state does not match ({e})") from None
+            raise CheckpointError(f"trainer_state.safetensors: optimizer/generator state does not match "
+                                  f"({e})") from None

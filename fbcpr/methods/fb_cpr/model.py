@@ -58,7 +58,8 @@ class FBCPRModel(nn.Module):
 
     # ------------------------------------------------------------------ public inference API
     @torch.no_grad()
-    def act(self, obs: ArrayLike, z: ArrayLike, mean: bool = True, generator: torch.Generator | None = None) -> ArrayLike:
+    def act(self, obs: ArrayLike, z: ArrayLike, mean: bool = True,
+            generator: torch.Generator | None = None) -> ArrayLike:
         """Action (N, action_dim) in [-1, 1] for raw observations (N, obs_dim) and latents (N, z_dim)."""
         obs_t, z_t = self._in(obs), self._in(z)
         self._check(obs_t, self.cfg.obs_dim, "obs")

@@ -88,8 +88,8 @@ class TD3Agent:
             total = rc.task_weight * torch.as_tensor(np.asarray(task_r), dtype=torch.float32, device=self.device)
         if self.imitation is not None:
             seq = {"history": batch["history"]} if self.history else {}
-            r = rc.imitation_weight * self.imitation.reward(batch["obs"].to(self.device), batch["next_obs"].to(self.device),
-                                                            **seq)
+            r = rc.imitation_weight * self.imitation.reward(batch["obs"].to(self.device),
+                                                            batch["next_obs"].to(self.device), **seq)
             total = r if total is None else total + r
         assert total is not None, "agent.reward was validated to name a source"
         return total
@@ -168,4 +168,5 @@ class TD3Agent:
                 self.imitation.load_state({k[len("imitation."):]: v for k, v in tensors.items()
                                            if k.startswith("imitation.")}, meta["imitation"])
         except (KeyError, ValueError, RuntimeError) as e:
-            raise CheckpointError(f"trainer_state.safetensors: optimizer/generator state does not match ({e})") from None
+            raise CheckpointError(f"trainer_state.safetensors: optimizer/generator state does not match "
+                                  f"({e})") from None

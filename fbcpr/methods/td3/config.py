@@ -40,7 +40,8 @@ class TD3Config(MethodConfig):
     tau: float = _f(0.005, _check(lambda v: 0.0 < v <= 1.0, "must be in (0, 1]"))
     critic_pessimism: float = _f(0.0, NON_NEGATIVE)
     actor_pessimism: float = _f(0.0, NON_NEGATIVE)
-    action_penalty: float = _f(0.0, NON_NEGATIVE)  # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
+    # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
+    action_penalty: float = _f(0.0, NON_NEGATIVE)
     # TD3+BC (Fujimoto & Gu, 2021) on the batch's demonstration rows (train.demonstration_share): the squared error
     # to their actions, scaled like action_penalty by the mean |Q|, so the policy's actions where it bootstraps on
     # demonstrated states stay near those the critic was trained on (alone it slowed the critic's divergence on
