@@ -7,7 +7,7 @@ fall_prob = 0.2 on top of MoCap).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import mujoco
 import numpy as np
@@ -16,14 +16,17 @@ from humanoid_env.errors import EnvError, InvalidStateError
 from humanoid_env.geometry import lowest_point
 from humanoid_env.model import NQ, NV, default_qpos, joint_ranges, load_model
 
-if TYPE_CHECKING:
-    from humanoid_env.env import InitSampler
-
 
 class StateSource(Protocol):
     """A motion library: anything with `sample_states(rng, n) -> (qpos (n,76), qvel (n,75))`."""
 
     def sample_states(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class Sampler(Protocol):
+    """A mixture's component: anything that draws initial states, like the samplers here (the env's `InitSampler`)."""
+
+    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 class _Geometry:
@@ -156,7 +159,7 @@ class FixedStates:
 class MixtureInit:
     """Each state comes from component k with probability weights[k]."""
 
-    def __init__(self, components: Sequence[InitSampler], weights: Sequence[float]) -> None:
+    def __init__(self, components: Sequence[Sampler], weights: Sequence[float]) -> None:
         w = np.asarray(weights, dtype=np.float64)
         if len(components) == 0 or w.shape != (len(components),) or (w < 0).any() or w.sum() <= 0:
             raise EnvError(f"MixtureInit needs one non-negative weight per component with a positive sum, got "
