@@ -185,7 +185,7 @@ class TrainConfig:
     # humanoid: a folder of demonstrations with actions (motions.demonstrations, e.g. the sampling planner's getting
     # up, lab/experiments/getup_planner.py --save) whose transitions go into the replay buffer when a run starts (fresh
     # or --init-from), each demonstration_copies times: transitions that exploration has not found (as plain
-    # transitions they made TD3's critic diverge: see demonstration_share)
+    # transitions they made TD3's critic diverge)
     demonstrations: str | None = _f(None)
     demonstration_copies: int = _f(1, _range(1, 1000))
     # > 0: the demonstrations are held apart from the replay buffer (never overwritten) and this share of every
