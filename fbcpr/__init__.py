@@ -9,7 +9,8 @@ from typing import Any
 __version__ = "0.1.0"
 __all__ = ["BFM", "FBCPRError", "Prompt", "Timeline", "__version__"]
 
-_LAZY = {"BFM": "fbcpr.inference.bfm", "FBCPRError": "fbcpr.core.errors", "Prompt": "fbcpr.inference.prompt", "Timeline": "fbcpr.inference.timeline"}
+_LAZY = {"BFM": "fbcpr.inference.bfm", "FBCPRError": "fbcpr.core.errors", "Prompt": "fbcpr.inference.prompt",
+         "Timeline": "fbcpr.inference.timeline"}
 
 
 def __getattr__(name: str) -> Any:

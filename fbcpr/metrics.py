@@ -5,8 +5,8 @@ All distances use d_smpl: the Euclidean distance between the pose parts (observa
 body positions and orientations; velocities ignored). Inputs may be full observations (..., 358) or pose
 parts (..., 214).
 
-POT is imported only when an EMD is computed, so training runs where it is not installed (the GPU lease
-image, lab/gpu): there the trainer's tracking EMD falls back to an exact assignment solver.
+POT is imported only when an EMD is computed, so training runs where it is not installed (e.g. a minimal GPU
+image): there the trainer's tracking EMD falls back to an exact assignment solver.
 """
 from __future__ import annotations
 
@@ -41,8 +41,8 @@ def d_smpl(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(pose_part(a, "d_smpl") - pose_part(b, "d_smpl"), axis=-1)
 
 
-def goal_success(dist: np.ndarray, beta: float = GOAL_BETA) -> np.ndarray:
-    """1 where the goal was reached (d <= beta) at any step; `dist` is (..., T) over an episode."""
+def goal_success(dist: np.ndarray, beta: float = GOAL_BETA) -> np.ndarray | np.float64:
+    """1 where the goal was reached (d <= beta) at any step; `dist` is (..., T) over an episode (a scalar for one)."""
     return (np.asarray(dist) <= beta).any(axis=-1).astype(np.float64)
 
 
@@ -116,7 +116,8 @@ def speed_profile(positions: np.ndarray, fps: float) -> np.ndarray:
     return np.linalg.norm(np.diff(p, axis=0), axis=-1) * fps
 
 
-def sparc(speed: np.ndarray, fps: float, pad_level: int = 4, cutoff_hz: float = 10.0, amp_threshold: float = 0.05) -> float:
+def sparc(speed: np.ndarray, fps: float, pad_level: int = 4, cutoff_hz: float = 10.0,
+          amp_threshold: float = 0.05) -> float:
     """Spectral arc length (SPARC, Balasubramanian et al. 2015): minus the arc length of the normalised magnitude
     spectrum of a speed profile, up to the adaptive cut-off where the spectrum falls below `amp_threshold`
     (at most `cutoff_hz`). Closer to 0 is smoother; compare an agent's with its expert's."""

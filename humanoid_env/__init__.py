@@ -15,5 +15,6 @@ if ENV_ID not in gymnasium.registry:
     gymnasium.register(ENV_ID, entry_point="humanoid_env.env:HumanoidEnv")
 
 __all__ = [
-    "BODY_NAMES", "JOINT_NAMES", "NQ", "NU", "NV", "LAYOUT", "OBS_DIM", "POSE", "ENV_ID", "load_model", "model_path", "observe",
+    "BODY_NAMES", "JOINT_NAMES", "NQ", "NU", "NV", "LAYOUT", "OBS_DIM", "POSE", "ENV_ID", "load_model", "model_path",
+    "observe",
 ]

@@ -1,14 +1,15 @@
 """Gymnasium environment for one SMPL humanoid: PD control at 30 Hz on a 450 Hz MuJoCo simulation.
 
-An action in [-1, 1]^69 is a PD target placed on each joint's range (the actuators' ctrlrange equals the
-joint range) by the env's action mapping (`humanoid_env.actions`: `rest`, the default, or `mid`). One step runs `mujoco.mj_step` for 15 substeps; the observation comes from the one observation
-function (`humanoid_env.observation`). A simulation that diverges (MuJoCo warnings, NaN or huge velocities)
-ends the episode with the last good observation and `info["diverged"] = True`; nothing raises.
+An action in [-1, 1]^69 is a PD target placed on each joint's range (the actuators' ctrlrange equals the joint range) by
+the env's action mapping (`humanoid_env.actions`: `rest`, the default, or `mid`). One step runs `mujoco.mj_step` for 15
+substeps; the observation comes from the one observation function (`humanoid_env.observation`). A simulation that
+diverges (MuJoCo warnings, NaN or huge velocities) ends the episode with the last good observation and
+`info["diverged"] = True`; nothing raises.
 """
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import gymnasium as gym
 import mujoco
@@ -18,6 +19,9 @@ from humanoid_env.actions import DEFAULT_ACTION_MAPPING, ActionMap, check_action
 from humanoid_env.errors import EnvError, InvalidStateError
 from humanoid_env.model import CONTROL_HZ, N_SUBSTEPS, NQ, NU, NV, load_model
 from humanoid_env.observation import OBS_DIM, assemble, read_kinematics
+
+if TYPE_CHECKING:
+    from humanoid_env.render import TrackRenderer
 
 #: RewardFn(obs (N,358), action (N,69) | None, qpos (N,76), qvel (N,75)) -> (N,), on the next state.
 RewardFn = Callable[[np.ndarray, "np.ndarray | None", np.ndarray, np.ndarray], np.ndarray]
@@ -99,7 +103,8 @@ def check_state(qpos: Any, qvel: Any, n: int | None = None) -> tuple[np.ndarray,
     qp, qv = np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
     want_p, want_v = ((NQ,), (NV,)) if n is None else ((n, NQ), (n, NV))
     if qp.shape != want_p or qv.shape != want_v:
-        raise InvalidStateError(f"reset options: expected qpos {want_p} and qvel {want_v}, got {qp.shape} and {qv.shape}")
+        raise InvalidStateError(f"reset options: expected qpos {want_p} and qvel {want_v}, got {qp.shape} and "
+                                f"{qv.shape}")
     if not (np.isfinite(qp).all() and np.isfinite(qv).all()):
         raise InvalidStateError("reset options: qpos and qvel must be finite (found NaN or inf)")
     return qp, qv
@@ -150,7 +155,7 @@ class HumanoidEnv(gym.Env):
         self.max_qvel = float(max_qvel)
         self.render_mode = render_mode
         self._size = (height, width)
-        self._renderer = None
+        self._renderer: TrackRenderer | None = None
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (NU,), np.float32)
         self.action_map = ActionMap(self.model, action_mapping)
@@ -219,7 +224,8 @@ class HumanoidEnv(gym.Env):
         terminated = diverged
         if not diverged:
             if self.reward_fn is not None:
-                reward = float(self.reward_fn(obs[None], self._act[None].astype(np.float32), info["qpos"][None], info["qvel"][None])[0])
+                reward = float(self.reward_fn(obs[None], self._act[None].astype(np.float32), info["qpos"][None],
+                                              info["qvel"][None])[0])
             if self.termination_fn is not None:
                 terminated = bool(self.termination_fn(obs[None], info["qpos"][None], info["qvel"][None])[0])
         lain = bool(self._clock.step(info["qpos"][None, 2])[0])

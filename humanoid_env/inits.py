@@ -23,6 +23,12 @@ class StateSource(Protocol):
     def sample_states(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+class Sampler(Protocol):
+    """A mixture's component: anything that draws initial states, like the samplers here (the env's `InitSampler`)."""
+
+    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
 class _Geometry:
     """Where a pose touches: its lowest point above the floor and its deepest self-penetration."""
 
@@ -72,7 +78,8 @@ class DefaultInit:
         _check_n(n)
         qpos = np.tile(self._qpos0, (n, 1))
         qpos[:, 7:] = np.clip(
-            qpos[:, 7:] + rng.uniform(-self.angle_noise, self.angle_noise, (n, NQ - 7)), self._range[:, 0], self._range[:, 1]
+            qpos[:, 7:] + rng.uniform(-self.angle_noise, self.angle_noise, (n, NQ - 7)), self._range[:, 0],
+            self._range[:, 1]
         )
         qpos[:, 2] -= np.minimum(self._geom.lowest_z(qpos), 0.0)  # lift out of the floor if the noise pushed a foot in
         qvel = rng.normal(0.0, self.vel_noise, (n, NV))
@@ -87,7 +94,8 @@ class FallInit:
     """
 
     def __init__(
-        self, height: tuple[float, float] = (0.2, 1.0), vel_noise: float = 0.0, max_overlap: float = 0.01, tries: int = 20
+        self, height: tuple[float, float] = (0.2, 1.0), vel_noise: float = 0.0, max_overlap: float = 0.01,
+        tries: int = 20
     ) -> None:
         if not 0.0 <= height[0] <= height[1]:
             raise EnvError(f"height must be a range 0 <= low <= high, got {height}")
@@ -126,7 +134,8 @@ class MocapInit:
         qpos, qvel = self.source.sample_states(rng, n)
         qpos, qvel = np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
         if qpos.shape != (n, NQ) or qvel.shape != (n, NV):
-            raise InvalidStateError(f"motion library returned qpos {qpos.shape} and qvel {qvel.shape}, expected ({n},{NQ}) and ({n},{NV})")
+            raise InvalidStateError(f"motion library returned qpos {qpos.shape} and qvel {qvel.shape}, expected "
+                                    f"({n},{NQ}) and ({n},{NV})")
         return qpos, qvel
 
 
@@ -150,10 +159,11 @@ class FixedStates:
 class MixtureInit:
     """Each state comes from component k with probability weights[k]."""
 
-    def __init__(self, components: Sequence[object], weights: Sequence[float]) -> None:
+    def __init__(self, components: Sequence[Sampler], weights: Sequence[float]) -> None:
         w = np.asarray(weights, dtype=np.float64)
         if len(components) == 0 or w.shape != (len(components),) or (w < 0).any() or w.sum() <= 0:
-            raise EnvError(f"MixtureInit needs one non-negative weight per component with a positive sum, got {list(weights)}")
+            raise EnvError(f"MixtureInit needs one non-negative weight per component with a positive sum, got "
+                           f"{list(weights)}")
         self.components, self.weights = list(components), w / w.sum()
 
     def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -95,7 +95,8 @@ def kinematic_passes(model: mujoco.MjModel, data: mujoco.MjData) -> None:
 def read_kinematics(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, ...]:
     """Run the kinematic passes on data's (qpos, qvel) and copy what `assemble` needs."""
     kinematic_passes(model, data)
-    return data.xpos[1:].copy(), data.xmat[1:].reshape(-1, 3, 3).copy(), data.cvel[1:].copy(), data.subtree_com[1].copy()
+    return (data.xpos[1:].copy(), data.xmat[1:].reshape(-1, 3, 3).copy(), data.cvel[1:].copy(),
+            data.subtree_com[1].copy())
 
 
 def observe(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, data: mujoco.MjData | None = None) -> np.ndarray:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 CAMERA = "track"
 
@@ -61,12 +62,13 @@ def write_video(frames: Iterable[np.ndarray], path: str | Path, fps: int = 30) -
     """Write (H,W,3) uint8 frames to a video file (format from the suffix, e.g. .mp4 via ffmpeg)."""
     import imageio.v2 as imageio
 
-    frames = [np.asarray(f) for f in frames]
-    if not frames:
+    arrays = [np.asarray(f) for f in frames]
+    if not arrays:
         raise ValueError("write_video: no frames to write")
-    if any(f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8 for f in frames):
+    if any(f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8 for f in arrays):
         raise ValueError("write_video: frames must be (H, W, 3) uint8 arrays")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    imageio.mimwrite(path, frames, fps=fps)
+    ims: list[npt.ArrayLike] = list(arrays)  # imageio's stub takes an invariant List[ArrayLike]
+    imageio.mimwrite(path, ims, fps=fps)
     return path

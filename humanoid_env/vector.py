@@ -84,7 +84,8 @@ class VectorHumanoidEnv(VectorEnv):
         self.batch = mjbatch.Batch(self.model, self.num_envs, nthread=num_threads or 0)
         b = self.batch
         self._qpos, self._qvel, self._ctrl, self._time = b.bind("qpos"), b.bind("qvel"), b.bind("ctrl"), b.bind("time")
-        self._xpos, self._xmat, self._cvel, self._com = b.bind("xpos"), b.bind("xmat"), b.bind("cvel"), b.bind("subtree_com")
+        self._xpos, self._xmat, self._cvel = b.bind("xpos"), b.bind("xmat"), b.bind("cvel")
+        self._com = b.bind("subtree_com")
         self.action_map = ActionMap(self.model, action_mapping)
         self._act = np.empty((self.num_envs, NU))
         self._obs = np.zeros((self.num_envs, OBS_DIM), np.float32)
@@ -160,10 +161,12 @@ class VectorHumanoidEnv(VectorEnv):
         qpos, qvel = self._qpos.copy(), self._qvel.copy()
         if diverged.any():  # keep the last good state and observation: never hand out NaN
             warn[diverged] = 0
-            obs[diverged], qpos[diverged], qvel[diverged] = self._obs[diverged], self._good_qpos[diverged], self._good_qvel[diverged]
+            obs[diverged], qpos[diverged], qvel[diverged] = (self._obs[diverged], self._good_qpos[diverged],
+                                                             self._good_qvel[diverged])
 
         if self.reward_fn is not None:
-            reward = np.asarray(self.reward_fn(obs, self._act.astype(np.float32), qpos, qvel), dtype=np.float64).reshape(self.num_envs)
+            reward = np.asarray(self.reward_fn(obs, self._act.astype(np.float32), qpos, qvel),
+                                dtype=np.float64).reshape(self.num_envs)
             reward[diverged] = 0.0
         else:
             reward = np.zeros(self.num_envs)
@@ -180,7 +183,8 @@ class VectorHumanoidEnv(VectorEnv):
         done = terminated | truncated
 
         self._obs, self._good_qpos, self._good_qvel = obs, qpos, qvel
-        info: dict[str, Any] = {"diverged": diverged, "final_obs": obs.copy(), "final_qpos": qpos, "final_qvel": qvel, "_final_obs": done}
+        info: dict[str, Any] = {"diverged": diverged, "final_obs": obs.copy(), "final_qpos": qpos, "final_qvel": qvel,
+                                "_final_obs": done}
         ids = np.flatnonzero(done)
         if len(ids):
             self._good_qpos, self._good_qvel = qpos.copy(), qvel.copy()

@@ -70,7 +70,8 @@ def validate_arrays(qpos: np.ndarray, qvel: np.ndarray, obs: np.ndarray, fps: in
     checks = (("qpos", qpos, NQ), ("qvel", qvel, NV), ("obs", obs, OBS_DIM))
     for key, arr, width in checks:
         if not isinstance(arr, np.ndarray) or arr.dtype.kind != "f":
-            raise ClipFormatError(f"{where}: {key} must be a floating-point array, got {getattr(arr, 'dtype', type(arr))}")
+            raise ClipFormatError(f"{where}: {key} must be a floating-point array, got "
+                                  f"{getattr(arr, 'dtype', type(arr))}")
         if arr.ndim != 2 or arr.shape[1] != width:
             raise ClipFormatError(f"{where}: {key} must have shape (T, {width}), got {arr.shape}")
         if not np.all(np.isfinite(arr)):
@@ -78,7 +79,8 @@ def validate_arrays(qpos: np.ndarray, qvel: np.ndarray, obs: np.ndarray, fps: in
             raise ClipFormatError(f"{where}: {key} has NaN or inf values (first at frame {bad})")
     lengths = {qpos.shape[0], qvel.shape[0], obs.shape[0]}
     if len(lengths) != 1:
-        raise ClipFormatError(f"{where}: qpos, qvel and obs have different lengths {qpos.shape[0]}, {qvel.shape[0]}, {obs.shape[0]}")
+        raise ClipFormatError(f"{where}: qpos, qvel and obs have different lengths {qpos.shape[0]}, {qvel.shape[0]}, "
+                              f"{obs.shape[0]}")
     if qpos.shape[0] < MIN_FRAMES:
         raise ClipFormatError(f"{where}: clip has {qpos.shape[0]} frames, at least {MIN_FRAMES} are needed")
     if fps != FPS:
@@ -95,7 +97,8 @@ def validate_arrays(qpos: np.ndarray, qvel: np.ndarray, obs: np.ndarray, fps: in
                               f"{int(np.argmax(vel))}, faster than {MAX_ROOT_SPEED:g} m/s")
     norms = np.linalg.norm(qpos[:, 3:7], axis=1)
     if np.any(np.abs(norms - 1.0) > 1e-3):
-        raise ClipFormatError(f"{where}: root quaternion qpos[:, 3:7] is not unit length (norms {norms.min():.3f}..{norms.max():.3f})")
+        raise ClipFormatError(f"{where}: root quaternion qpos[:, 3:7] is not unit length (norms "
+                              f"{norms.min():.3f}..{norms.max():.3f})")
 
 
 def save_clip(clip: Clip, path: str | os.PathLike) -> Path:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +56,7 @@ def actions_path(clip_path: str | Path) -> Path:
 def save_demonstration(demo: Demonstration, path: str | Path) -> Path:
     """Write the clip to `path` (.npz) and its actions (and labels, if any) beside it."""
     check_actions(demo.actions, demo.clip.n_frames, str(path))
-    extra = {}
+    extra: dict[str, Any] = {}  # more arrays for np.savez's **kwds
     if demo.labels is not None:
         check_actions(demo.labels, demo.clip.n_frames, f"{path} (labels)")
         extra["labels"] = demo.labels.astype(np.float32)

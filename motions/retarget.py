@@ -174,14 +174,17 @@ def _resample(src: SourceMotion, fps: float) -> tuple[dict[str, np.ndarray], dic
     return pos, rot, frame_idx
 
 
-def build_targets(src_pos: dict[str, np.ndarray], src_rot: dict[str, np.ndarray], rest: _Rest) -> tuple[dict, dict, float]:
+def build_targets(src_pos: dict[str, np.ndarray], src_rot: dict[str, np.ndarray],
+                  rest: _Rest) -> tuple[dict, dict, float]:
     """World targets for our bodies: our segment lengths along the source's segment directions.
 
     Returns (positions body -> (T,3), orientations body -> (T,3,3), scale applied to the source).
     """
     leg_src = np.median(
-        np.linalg.norm(src_pos["l_knee"] - src_pos["l_hip"], axis=1) + np.linalg.norm(src_pos["l_ankle"] - src_pos["l_knee"], axis=1)
-        + np.linalg.norm(src_pos["r_knee"] - src_pos["r_hip"], axis=1) + np.linalg.norm(src_pos["r_ankle"] - src_pos["r_knee"], axis=1)
+        np.linalg.norm(src_pos["l_knee"] - src_pos["l_hip"], axis=1)
+        + np.linalg.norm(src_pos["l_ankle"] - src_pos["l_knee"], axis=1)
+        + np.linalg.norm(src_pos["r_knee"] - src_pos["r_hip"], axis=1)
+        + np.linalg.norm(src_pos["r_ankle"] - src_pos["r_knee"], axis=1)
     ) / 2
     leg_ours = rest.length("L_Hip", "L_Knee") + rest.length("L_Knee", "L_Ankle")
     scale = leg_ours / leg_src
@@ -212,7 +215,8 @@ def build_targets(src_pos: dict[str, np.ndarray], src_rot: dict[str, np.ndarray]
         tgt[f"{S}_Knee"] = along_leg(hip, f"{s}_hip", f"{s}_knee", f"{S}_Hip", f"{S}_Knee")
         tgt[f"{S}_Ankle"] = along_leg(tgt[f"{S}_Knee"], f"{s}_knee", f"{s}_ankle", f"{S}_Knee", f"{S}_Ankle")
         if f"{S}_Ankle" in rots:
-            tgt[f"{S}_Toe"] = tgt[f"{S}_Ankle"] + np.einsum("tij,j->ti", rots[f"{S}_Ankle"], rest.offset(f"{S}_Ankle", f"{S}_Toe"))
+            tgt[f"{S}_Toe"] = tgt[f"{S}_Ankle"] + np.einsum("tij,j->ti", rots[f"{S}_Ankle"],
+                                                            rest.offset(f"{S}_Ankle", f"{S}_Toe"))
         else:
             tgt[f"{S}_Toe"] = along(tgt[f"{S}_Ankle"], f"{s}_ankle", f"{s}_toe", f"{S}_Ankle", f"{S}_Toe")
     neck_len = float(np.linalg.norm(rest.xpos["Neck"] - (rest.xpos["Pelvis"] + rest.hip_mid)))
@@ -326,7 +330,7 @@ class Retargeter:
             task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(rot), pos))
         self._iterate([*self.tasks.values(), self.posture], iterations)
 
-    def _iterate(self, tasks: list, iterations: int) -> None:
+    def _iterate(self, tasks: list[mink.Task], iterations: int) -> None:
         for _ in range(iterations):
             vel = mink.solve_ik(self.config, tasks, 1.0, solver="daqp", damping=1e-3, limits=self.limits)
             self.config.integrate_inplace(vel, 1.0)
@@ -344,16 +348,18 @@ class Retargeter:
         for t in bad:
             self.config.update(qpos[t])
             self.hold.set_target(qpos[t])
-            tasks = [self.hold]
+            tasks: list[mink.Task] = [self.hold]
             for body, task in self._plant_tasks.items():
                 pose = self.config.get_transform_frame_to_world(body, "body")
                 k = "LR".index(body[0]) if body[0] in "LR" else None
                 drop = foot_low[t, k] if k is not None else 0.0
-                task.set_target(mink.SE3.from_rotation_and_translation(pose.rotation(), pose.translation() - (0, 0, drop)))
+                task.set_target(mink.SE3.from_rotation_and_translation(pose.rotation(),
+                                                                       pose.translation() - (0, 0, drop)))
                 tasks.append(task)
             for b in np.flatnonzero(body_low[t] < 0):
                 task = self._lift_tasks[int(b)]
-                task.set_target(mink.SE3.from_translation(self.config.data.xpos[b] - (0, 0, body_low[t, b] - PLANT_MARGIN)))
+                lift = self.config.data.xpos[b] - (0, 0, body_low[t, b] - PLANT_MARGIN)
+                task.set_target(mink.SE3.from_translation(lift))
                 tasks.append(task)
             self._iterate(tasks, PLANT_ITERATIONS)
             qpos[t] = self.config.q
@@ -381,7 +387,8 @@ class Retargeter:
             self.config.update(q)
             self._solve(targets, rots, t, self.first_iterations if t == 0 else self.iterations)
             qpos[t] = self.config.q
-            err += np.linalg.norm(self.config.data.xpos[self._ids] - np.stack([targets[b][t] for b in self._pos_bodies]), axis=1).mean()
+            wanted = np.stack([targets[b][t] for b in self._pos_bodies])
+            err += np.linalg.norm(self.config.data.xpos[self._ids] - wanted, axis=1).mean()
         contacts = source_contacts(pos, self.fps, scale, src.floor)
         for _ in range(PLANT_ROUNDS):
             qpos = self._plant(qpos, contacts)

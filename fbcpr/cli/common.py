@@ -48,12 +48,13 @@ def _global_options(
 
 class HelpGroup(TyperGroup):
     """A command group whose help shows on/off flags bare (`--resume`), not as if they took a value
-    (typer renders every flag's type, `--resume <bool>`)."""
+    (typer renders every flag's type, `--resume <bool>`). `ctx` is click's Context, typed Any: the overridden
+    methods take the base class, whose module depends on the typer version (newer ones vendor click)."""
 
-    def get_params(self, ctx: typer.Context) -> list[Any]:
+    def get_params(self, ctx: Any) -> list[Any]:
         return _bare_flags(super().get_params(ctx))
 
-    def get_command(self, ctx: typer.Context, name: str) -> Any:
+    def get_command(self, ctx: Any, name: str) -> Any:
         cmd = super().get_command(ctx, name)
         if cmd is not None and not isinstance(cmd, HelpGroup):
             _bare_flags(cmd.get_params(ctx))

@@ -21,7 +21,7 @@ from fbcpr.cli.common import cli_errors, console
 
 DEFAULT_CONFIG = "quickstart.yaml"
 #: One line on what the shipped model is, for the demo's verdict (its model card has the details).
-PRETRAINED_NOTE = ("FB-CPR, small networks, trained on 2 CPU cores, then continued six times on leased GPUs and "
+PRETRAINED_NOTE = ("FB-CPR, small networks, trained on 2 CPU cores, then continued six times on a GPU and "
                    "averaged, on the DeepMimic clips and our synthetic clips")
 
 
@@ -37,6 +37,7 @@ def train_for(trainer: Any, seconds: float | None, steps: int | None) -> dict[st
     every env step and update, so the budget holds to within one update plus the final checkpoint)."""
     if steps is not None:
         return trainer.run(max_env_steps=steps)
+    assert seconds is not None, "train_for: give seconds or steps"
     return trainer.run(deadline=time.monotonic() + seconds)
 
 
@@ -54,7 +55,8 @@ def score_rows(results: dict[str, Any], reward: str, goal: str, clip: str) -> li
 def demo_command(
     train: bool = typer.Option(False, "--train", help="Train a model from scratch first instead of prompting the "
                                "shipped pretrained one (--config, --minutes, --steps, --device apply)."),
-    config: Path | None = typer.Option(None, "--config", help="Run config (default: the shipped fbcpr/configs/quickstart.yaml)."),
+    config: Path | None = typer.Option(None, "--config", help="Run config (default: the shipped "
+                                                             "fbcpr/configs/quickstart.yaml)."),
     minutes: float = typer.Option(5.0, "--minutes", min=0.05, help="Training time budget."),
     steps: int | None = typer.Option(None, "--steps", min=1, help="Train exactly this many env steps instead."),
     out: Path = typer.Option(Path("runs/demo"), "--out", help="Run directory (checkpoints, videos, summary)."),
@@ -83,7 +85,8 @@ def demo_command(
     else:
         given = [name for name, v in (("--config", config), ("--steps", steps), ("--device", device)) if v is not None]
         if given:
-            raise ValueError(f"{given[0]} applies to training: add --train, or leave it out to prompt the pretrained model")
+            raise ValueError(f"{given[0]} applies to training: add --train, or leave it out to prompt the pretrained "
+                             "model")
         console.rule("1/3 loading the pretrained model")
         bfm, trained = BFM.pretrained(), None
         out.mkdir(parents=True, exist_ok=True)
@@ -105,7 +108,7 @@ def demo_command(
     score = f"It beats both floor baselines on {wins} of {len(rows['FB-CPR'])} scores."
     if trained is None:
         verdict = (f"The pretrained model ({PRETRAINED_NOTE}). {score} Its model card "
-                   "(fbcpr/pretrained/README.md) and lab/log.md say what it can and cannot do yet.")
+                   "(fbcpr/pretrained/README.md) says what it can and cannot do yet.")
     else:
         verdict = (f"This model trained for {trained['minutes']:.1f} min ({trained['env_steps']:,} env steps); the "
                    f"paper trains for 30M env steps. {score} A few-minute model is a smoke test of the pipeline, "
@@ -114,7 +117,8 @@ def demo_command(
     console.print(verdict)
     report = {"model": "pretrained" if trained is None else trained["checkpoint"], "training": trained,
               "videos": [str(v) for v in videos],
-              "scores": {name: [{"prompt": p, "metric": m, "value": v} for p, m, v, _ in r] for name, r in rows.items()},
+              "scores": {name: [{"prompt": p, "metric": m, "value": v} for p, m, v, _ in r]
+                         for name, r in rows.items()},
               "beats_floors": wins, "verdict": verdict}
     (out / "demo_summary.json").write_text(json.dumps(report, indent=1, default=float))
     console.print(f"summary written to [bold]{out / 'demo_summary.json'}[/]")

@@ -67,6 +67,7 @@ def rollout_command(
                   f"{h.mean():.3f}", f"{h[-1]:.3f}", str(diverged))
     console.print(table)
     if renderer:
+        assert video is not None  # the renderer exists for --video only
         renderer.close()
         console.print(f"video written to [bold]{write_video(frames, video, fps=30)}[/]")
 

@@ -65,8 +65,8 @@ def export_command(
         console.print(f"  {name:28s} {size / 2**20:8.2f} MiB")
     console.print(f"wrote [bold]{path}[/] ({sum(sizes.values()) / 2**20:.2f} MiB in all)")
     if interpolate_from is not None and not reward_states_from:
-        console.print(f"its reward states are {checkpoint}'s; to try the mix's own (better for the shipped mix, worse "
-                      f"for S3 in lab/log.md section 42: measure both): fbcpr train fbcpr/configs/own-states.yaml "
+        console.print(f"its reward states are {checkpoint}'s; to try the mix's own (better for some mixes, worse for "
+                      f"others: measure both): fbcpr train fbcpr/configs/own-states.yaml "
                       f"--init-from {path} --out RUN, then fbcpr export {path} OUT --reward-states-from RUN")
 
 

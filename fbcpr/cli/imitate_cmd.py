@@ -79,7 +79,8 @@ def imitate_command(
                                           "shipped `<reward>-walk` / `<reward>-toy` one."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the live progress bar."),
 ) -> None:
-    """Imitate one demonstration: TD3 on the chosen learned imitation reward, trained online (Ctrl-C: final checkpoint)."""
+    """Imitate one demonstration: TD3 on the chosen learned imitation reward, trained online (Ctrl-C: final
+    checkpoint)."""
     import numpy as np
 
     from fbcpr.train.trainer import Trainer

@@ -125,7 +125,8 @@ def import_cmd(
                              "max_foot_penetration_m": round(report.max_penetration, 4),
                              "max_contact_gap_m": round(report.max_contact_gap, 4)})
             except Exception as err:  # one bad file must not stop the others
-                failed.append({"file": str(path), "reason": str(err).strip().splitlines()[0] if str(err) else type(err).__name__})
+                failed.append({"file": str(path),
+                               "reason": str(err).strip().splitlines()[0] if str(err) else type(err).__name__})
             bar.advance(task)
     seconds = sum(d["seconds"] for d in done)
     _write_json_atomic(merge_summary(out / "import_summary.json", done, failed), out / "import_summary.json")
@@ -235,7 +236,8 @@ def render_cmd(
 
         out.parent.mkdir(parents=True, exist_ok=True)
         imageio.imwrite(out, np.concatenate(frames, axis=1))
-        console.print(f"wrote {out} ({len(rows)} frames of {clip.name} at t = {', '.join(f'{r / clip.fps:.1f}' for r in rows)} s)")
+        times = ", ".join(f"{r / clip.fps:.1f}" for r in rows)
+        console.print(f"wrote {out} ({len(rows)} frames of {clip.name} at t = {times} s)")
         return
     write_video(frames, out, fps=clip.fps)
     console.print(f"wrote {out} ({clip.n_frames} frames, {clip.seconds:.1f} s)")

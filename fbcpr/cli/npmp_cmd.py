@@ -91,7 +91,7 @@ def distill_command(
         path, done = distill(out, data, cfg, steps, info, resume=resume, checkpoint_every=checkpoint_every,
                              on_update=report)
     state = "stopped by a signal at" if done < steps else "finished:"
-    console.print(f"{state} {done:,} gradient steps ({time.time() - start:.0f} s this session); checkpoint: {path}")
+    console.print(f"{state} {done:,} gradient steps ({time.time() - start:.0f} s in this command); checkpoint: {path}")
 
 
 def _collect(expert: str, motions: Path, method: str, rollouts: int, noise: float, perturb: float, max_steps: int,
@@ -129,13 +129,16 @@ def eval_command(
     from fbcpr.inference.bfm import BFM
     from motions.library import MotionLibrary
 
-    agents = [load_tracker(c) for c in ckpts]
-    for c, agent in zip(ckpts, agents):
+    loaded = [load_tracker(c) for c in ckpts]
+    agents: list[NPMPAgent] = []
+    for c, agent in zip(ckpts, loaded):
         if not isinstance(agent, NPMPAgent):
             raise ValueError(f"{c}: not an NPMP checkpoint (`fbcpr eval` scores a BFM)")
+        agents.append(agent)
     recorded = {str(a.info.get("expert", "pretrained")) for a in agents}
     if expert is None and len(recorded) > 1:
-        raise ValueError(f"the NPMPs were distilled from different experts {sorted(recorded)}: choose one with --expert")
+        raise ValueError(f"the NPMPs were distilled from different experts {sorted(recorded)}: choose one with "
+                         "--expert")
     expert = expert or recorded.pop()
     library = MotionLibrary.load(motions)
     with progress() as bar:

@@ -69,6 +69,7 @@ def rollout(bfm: Any, zs: np.ndarray, seed: int = 0, start: tuple[np.ndarray, np
             ep.qvel.append(inf["qvel"])
             if video:
                 frame = env.render()
+                assert frame is not None  # an rgb_array env renders a frame
                 ep.frames.append(frame if ref_frame is None else np.concatenate([frame, ref_frame(t)], axis=1))
 
         record(obs, info, 0)
@@ -214,6 +215,7 @@ def prompt_command(
         z, title = bfm.prompt.goal(goal, method=method or "backward"), f"goal {goal}"
         target = goal_observation(goal, bfm.obs_dim)[0]
     else:
+        assert imitate is not None  # exactly one of the three was given
         clip = _load_clip(imitate)
         z, title = bfm.prompt.imitate(clip), f"imitate {clip.name}"
     refined = None
@@ -238,6 +240,7 @@ def prompt_command(
         rows += [("final d_smpl", f"{dist[-1]:.3f}"), ("min d_smpl", f"{dist.min():.3f}"),
                  ("success (d <= 2)", f"{goal_success(dist):.0f}"), ("proximity", f"{goal_proximity(dist):.3f}")]
     else:
+        assert clip is not None  # loaded above for --imitate
         rows += [("EMD to clip", f"{emd(np.stack(ep.obs), clip.obs):.3f}")]
     if refined is not None:
         rows += [("refinement starts: score z0 -> z", f"{refined.score0:.3f} -> {refined.score:.3f}"),
@@ -269,11 +272,11 @@ def track_command(
     zs = agent.track_z(clip)
     ep = rollout(agent, zs, start=(clip.qpos[0], clip.qvel[0]), video=video is not None, reference=clip,
                  label=f"track {clip.name}")
-    agent = np.stack(ep.obs)
-    ref = clip.obs[: len(agent)]
-    success = ep.diverged_at is None and tracking_success(agent, ref)
-    rows = [("frames", f"{len(agent)} / {clip.n_frames}"), ("tracking success", "yes" if success else "no"),
-            ("EMD", f"{emd(agent, clip.obs):.3f}"), ("mean d_smpl", f"{d_smpl(agent, ref).mean():.3f}")]
+    states = np.stack(ep.obs)
+    ref = clip.obs[: len(states)]
+    success = ep.diverged_at is None and tracking_success(states, ref)
+    rows = [("frames", f"{len(states)} / {clip.n_frames}"), ("tracking success", "yes" if success else "no"),
+            ("EMD", f"{emd(states, clip.obs):.3f}"), ("mean d_smpl", f"{d_smpl(states, ref).mean():.3f}")]
     console.print(_table(f"track {clip.name}", rows + _diverged_row(ep)))
     if video is not None:
         write_frames(ep, video)

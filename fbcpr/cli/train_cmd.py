@@ -22,7 +22,8 @@ def train_command(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the live progress bar (off: a plain "
                                   "log line every train.log_every env steps)."),
     init_from: str | None = typer.Option(None, "--init-from", help="Warm-start a new run from the weights of a "
-                                            "checkpoint, inference-only ones included ('pretrained': the shipped model)."),
+                                            "checkpoint, inference-only ones included ('pretrained': the shipped "
+                                            "model)."),
 ) -> None:
     """Train FB-CPR online; Ctrl-C (or SIGTERM, SIGHUP) stops at the next safe point with a final checkpoint.
     Data-parallel over processes and machines: `torchrun --nproc_per_node=N -m fbcpr train ...`."""

@@ -6,7 +6,8 @@ Layout of a checkpoint directory:
     manifest.json               format version, method (`algorithm`), library versions, sha256 and shapes of every file
     trainer_state.safetensors   optional: target nets, optimizer moments; JSON scalars/counters/RNG in its header
     reward_buffer.safetensors   optional: next_obs, qpos, qvel subsample for reward prompts (exports may store
-                                the states alone: next_obs is rebuilt from them on load, the env kind's observer in `fbcpr.core.registry.ENVS`)
+                                the states alone: next_obs is rebuilt from them on load, the env kind's observer
+                                in `fbcpr.core.registry.ENVS`)
     reward_prompts.safetensors  optional: the reward prompts (z) of the named tasks, inferred at export from more
                                 states than reward_buffer keeps (`fbcpr.inference.reward_prompts`)
     replay_buffer.safetensors   optional: the whole replay buffer (exact resume)
@@ -24,6 +25,7 @@ import os
 import shutil
 import time
 import uuid
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,7 +46,8 @@ from humanoid_env.actions import LEGACY_ACTION_MAPPING
 FORMAT = "fbcpr-checkpoint"
 FORMAT_VERSION = 1
 MODEL_FILE, CONFIG_FILE, MANIFEST_FILE = "model.safetensors", "config.yaml", "manifest.json"
-TRAINER_FILE, REWARD_FILE, REPLAY_FILE = "trainer_state.safetensors", "reward_buffer.safetensors", "replay_buffer.safetensors"
+TRAINER_FILE, REWARD_FILE = "trainer_state.safetensors", "reward_buffer.safetensors"
+REPLAY_FILE = "replay_buffer.safetensors"
 PROMPTS_FILE = "reward_prompts.safetensors"
 REWARD_KEYS = ("next_obs", "qpos", "qvel")
 STATE_KEYS = ("qpos", "qvel")
@@ -192,12 +195,21 @@ def seal(tmp: Path, path: Path, algorithm: str, model: dict[str, int], extra: di
     swap_into_place(tmp, path)
 
 
+def _model_sizes(model: torch.nn.Module) -> dict[str, int]:
+    """The manifest's sizes of a method's model: each keeps the `ModelConfig` it was built from (as `cfg`, its sizes
+    set, or it would not have built) and has a `z_dim`."""
+    cfg, z_dim = model.cfg, model.z_dim
+    assert isinstance(cfg, ModelConfig) and cfg.obs_dim is not None and cfg.action_dim is not None
+    assert isinstance(z_dim, int)
+    return {"obs_dim": cfg.obs_dim, "action_dim": cfg.action_dim, "z_dim": z_dim}
+
+
 def save_checkpoint(
     path: str | Path,
     model: torch.nn.Module,
     config: Config | ModelConfig,
     trainer_state: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
-    reward_buffer: dict[str, np.ndarray | torch.Tensor] | None = None,
+    reward_buffer: Mapping[str, np.ndarray | torch.Tensor] | None = None,
     replay_buffer: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
     reward_dtype: torch.dtype = torch.float32,
     reward_obs: bool = True,
@@ -237,8 +249,7 @@ def save_checkpoint(
         cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}
         (tmp / CONFIG_FILE).write_text(yaml.safe_dump(cfg_data, sort_keys=False))
         seal(tmp, path, config.algorithm if isinstance(config, Config) else DEFAULT_ALGORITHM,
-             {"obs_dim": model.cfg.obs_dim, "action_dim": model.cfg.action_dim, "z_dim": model.z_dim},
-             {"tensors": shapes})
+             _model_sizes(model), {"tensors": shapes})
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -23,11 +23,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 import torch
 from torch import Tensor, nn
+
+if TYPE_CHECKING:
+    from fbcpr.core.schema import Config
 
 #: A registry reward on next states: (next_obs (N, obs_dim), qpos (N, nq), qvel (N, nv)) -> (N,).
 TaskReward = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -90,6 +93,31 @@ class OnlineAgent(Protocol):
 
     def load_state(self, tensors: dict[str, Tensor], meta: dict[str, Any]) -> None:
         ...
+
+
+class OnlineAgentClass(Protocol):
+    """An online agent's class, as the registry loads it: what it declares before it exists (the replay fields it
+    trains on) and how a run builds it."""
+
+    fields: tuple[str, ...]
+
+    def from_config(self, cfg: Config, bundle: EnvBundle, device: torch.device, seed: int) -> OnlineAgent:
+        """The agent for a run config on an environment (a classmethod of the agent class)."""
+        ...
+
+
+@runtime_checkable
+class BF16Agent(Protocol):
+    """An agent whose update can run under bf16 autocast (`agent.bf16`); the trainer settles "auto" on it."""
+
+    bf16: bool
+
+
+@runtime_checkable
+class GraphedAgent(Protocol):
+    """An agent whose update can be captured in a CUDA graph (`agent.cuda_graph`): `graphed` says whether it is."""
+
+    graphed: bool
 
 
 @runtime_checkable

@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     import torch
     from torch import nn
 
-    from fbcpr.core.protocols import EnvBundle, ImitationReward, OnlineAgent, StateObserver
+    from fbcpr.core.protocols import EnvBundle, ImitationReward, OnlineAgent, OnlineAgentClass, StateObserver
     from fbcpr.core.schema import Config, EnvConfig, MethodConfig, ModelConfig
 
 #: What a checkpoint that records no method holds (every checkpoint written before methods existed).
@@ -47,7 +47,7 @@ class Method:
         """A fresh model of this method with the sizes of `cfg` (obs_dim and action_dim set)."""
         return load(self.model_path)(cfg)
 
-    def agent_class(self) -> type[OnlineAgent]:
+    def agent_class(self) -> OnlineAgentClass:
         """The agent's class, for what it declares before it exists (the replay fields it trains on: `fields`)."""
         return load(self.agent_path)
 

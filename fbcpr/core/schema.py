@@ -13,7 +13,7 @@ import types
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import yaml
 
@@ -41,17 +41,32 @@ def _f(default: Any, check: Callable[[Any], str | None] | None = None, path: str
     folder path for the env of that name ("any": every env), which reading a config file resolves."""
     meta = {"check": check, "path": path}
     if isinstance(default, (list, dict)):
-        return field(default_factory=lambda d=default: type(d)(d), metadata=meta, **kw)
+        return field(default_factory=lambda: type(default)(default), metadata=meta, **kw)
     return field(default=default, metadata=meta, **kw)
 
 
 @dataclass
 class MethodConfig:
-    """Base of a method's `agent:` section (config_from_dict puts the named method's own there). `validate_run` checks what the section needs of the rest of the run
-    (other sections), after every section was read on its own."""
+    """Base of a method's `agent:` section (config_from_dict puts the named method's own there). `validate_run` checks
+    what the section needs of the rest of the run (other sections), after every section was read on its own."""
 
     def validate_run(self, run: Config) -> None:
         """ConfigError naming the key when this method cannot run with `run`'s other sections."""
+
+
+@runtime_checkable
+class BatchConfig(Protocol):
+    """What the online trainer reads of every method's `agent:` section (each method declares both, with its own
+    defaults and checks): update batches of `batch_size` transitions and demonstration windows of `seq_length`."""
+
+    batch_size: int
+    seq_length: int
+
+
+def batch_config(agent: MethodConfig) -> BatchConfig:
+    """A method's `agent:` section as the trainer reads it."""
+    assert isinstance(agent, BatchConfig), f"{type(agent).__name__}: a method section needs batch_size and seq_length"
+    return agent
 
 
 def check_windows(batch_size: int, seq_length: int) -> None:
@@ -86,7 +101,8 @@ class EnvConfig:
     """Which environment and demonstrations; the trainer only sees what `fbcpr.envs.bundle.make_env` builds."""
 
     name: str = _f("humanoid")  # an env kind of the registry (`fbcpr.core.registry.ENVS`), checked on load
-    motions: str = _f("synthetic", path="humanoid")  # humanoid: a folder of clips or one clip .npz; toy: "synthetic" (all demos) or demo names
+    # humanoid: a folder of clips or one clip .npz; toy: "synthetic" (all demos) or demo names
+    motions: str = _f("synthetic", path="humanoid")
     fall_prob: float = _f(0.2, PROB)
     stand_prob: float = _f(0.0, PROB)  # humanoid: share of training episodes that start from the standing rest pose
     # humanoid: share of training episodes that start on a frame of the clips named in focus_clips (reference-state
@@ -98,7 +114,8 @@ class EnvConfig:
     # that works, velocities included, where a mocap clip's frames are only kinematic
     focus_motions: str | None = _f(None, path="humanoid")
     max_episode_steps: int = _f(300, _range(1, 10**7))
-    action_mapping: str = _f(DEFAULT_ACTION_MAPPING, _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
+    action_mapping: str = _f(DEFAULT_ACTION_MAPPING,
+                             _check(lambda v: v in ACTION_MAPPINGS, f"must be one of {ACTION_MAPPINGS}"))
     # humanoid: truncate a training episode (not terminate: no reward or objective changes) once the pelvis has
     # been below 0.6 m this many seconds in a row, so the buffer holds more upright states and fewer of lying
     # still; 0 = off (the paper). Evaluation episodes always run their full length.
@@ -120,7 +137,8 @@ class TrainConfig:
     """Online loop (Tables 3, 4, 9): rollouts, update ratio, buffer, priorities, logging, checkpoints."""
 
     seed: int = _f(0, NON_NEGATIVE)
-    device: str = _f("cpu", _check(lambda v: v == "cpu" or v.startswith("cuda") or v == "auto", "must be cpu, cuda[:i] or auto"))
+    device: str = _f("cpu", _check(lambda v: v == "cpu" or v.startswith("cuda") or v == "auto",
+                                   "must be cpu, cuda[:i] or auto"))
     total_env_steps: int = _f(30_000_000, POSITIVE)
     num_envs: int = _f(50, _range(1, 4096))
     warmup_steps: int = _f(50_000, NON_NEGATIVE)
@@ -154,7 +172,7 @@ class TrainConfig:
     keep_best_mode: str = _f("max", _check(lambda v: v in ("max", "min"), "must be 'max' or 'min'"))
     # minimum values an evaluation must reach to compete for checkpoints/best, e.g. {eval/upright_s: 10,
     # eval/upright_pushed_s: 10}: the best walk among evaluations that still stand, not the best walk of a run whose
-    # stand comes and goes (lab/log.md section 24)
+    # stand comes and goes
     keep_best_requires: dict[str, float] = _f({}, _check(lambda d: all(k.startswith("eval/") for k in d),
                                                          "must name eval/ metrics"))
     checkpoint_every: int = _f(1_000_000, NON_NEGATIVE)
@@ -167,9 +185,9 @@ class TrainConfig:
     # is, so that with a frozen B (agent.freeze_backward) reward prompts infer the loaded model's z's
     keep_reward_sample: bool = _f(False)
     # humanoid: a folder of demonstrations with actions (motions.demonstrations, e.g. the sampling planner's getting
-    # up, lab/experiments/getup_planner.py --save) whose transitions go into the replay buffer when a run starts (fresh or
-    # --init-from), each demonstration_copies times: transitions that exploration has not found. As plain transitions
-    # they made TD3's critic diverge in lab/log.md section 32
+    # up, lab/experiments/getup_planner.py --save) whose transitions go into the replay buffer when a run starts (fresh
+    # or --init-from), each demonstration_copies times: transitions that exploration has not found (as plain
+    # transitions they made TD3's critic diverge)
     demonstrations: str | None = _f(None, path="humanoid")
     demonstration_copies: int = _f(1, _range(1, 1000))
     # > 0: the demonstrations are held apart from the replay buffer (never overwritten) and this share of every
@@ -177,7 +195,7 @@ class TrainConfig:
     demonstration_share: float = _f(0.0, _range(0.0, 0.5))
     torch_threads: int = _f(0, _range(0, 1024))
     # MuJoCo threads of the training envs; 0: all cores, split between the ranks of a torchrun on one machine.
-    # Set it when other runs share the machine (several seeds on one leased GPU: lab/gpu)
+    # Set it when other runs share the machine (e.g. several seeds on one GPU)
     env_threads: int = _f(0, _range(0, 1024))
     dist_timeout_s: float = _f(600.0, _range(1.0, 86_400.0))  # torchrun runs: a rank gone this long is an error
     dist_backend: str = _f("auto", _check(lambda v: v in ("auto", "nccl", "gloo"), "must be auto, nccl or gloo"))
@@ -243,8 +261,8 @@ def _type_ok(value: Any, tp: Any) -> tuple[bool, Any]:
         (item,) = typing.get_args(tp)
         if not isinstance(value, list):
             return False, value
-        checked = [_type_ok(v, item) for v in value]
-        return all(ok for ok, _ in checked), [v for _, v in checked]
+        items = [_type_ok(v, item) for v in value]
+        return all(ok for ok, _ in items), [v for _, v in items]
     return False, value
 
 
@@ -270,7 +288,7 @@ def _build(cls: type, data: Any, prefix: str, sections: dict[str, type] | None =
         key = f"{prefix}.{name}" if prefix else name
         section = names[name].metadata.get("section")  # a sub-section whose class is imported late
         tp = (sections or {}).get(name, section() if section is not None else hints[name])
-        if dataclasses.is_dataclass(tp):
+        if isinstance(tp, type) and dataclasses.is_dataclass(tp):
             kwargs[name] = _build(tp, value, key)
             continue
         ok, coerced = _type_ok(value, tp)

@@ -1,11 +1,11 @@
 """A 2-D point with demonstrations: a seconds-scale stand-in for the humanoid in tests and benchmarks.
 
-State: position p in [-1, 1]^2. Action a in [-1, 1]^2 moves it: p' = clip(p + 0.1 a) (kinematic control,
-so every behaviour is about positions and learns in CPU minutes). Observation = qpos = (x, y);
-qvel is the last displacement (kept for the qpos/qvel interface, not observed). The batched env mirrors `VectorHumanoidEnv`'s API
-(SAME_STEP autoreset, info["qpos"/"qvel"], info["final_obs"/"final_qpos"/"final_qvel"], "_final_obs").
-The demonstration library mirrors `motions.MotionLibrary` (windows, states, EMD priorities), and the tasks
-are rewards on the next observation, like the humanoid's reward registry.
+State: position p in [-1, 1]^2. Action a in [-1, 1]^2 moves it: p' = clip(p + 0.1 a) (kinematic control, so every
+behaviour is about positions and learns in CPU minutes). Observation = qpos = (x, y); qvel is the last displacement
+(kept for the qpos/qvel interface, not observed). The batched env mirrors `VectorHumanoidEnv`'s API (SAME_STEP
+autoreset, info["qpos"/"qvel"], info["final_obs"/"final_qpos"/"final_qvel"], "_final_obs"). The demonstration library
+mirrors `motions.MotionLibrary` (windows, states, EMD priorities), and the tasks are rewards on the next observation,
+like the humanoid's reward registry.
 """
 from __future__ import annotations
 
@@ -111,7 +111,8 @@ class PointMassVectorEnv(VectorEnv):
             self._np_random, _ = seeding.np_random(int(seed))
         if options and "qpos" in options:
             self.qpos = np.array(options["qpos"], dtype=np.float64).reshape(self.num_envs, NQ)
-            self.qvel = np.array(options.get("qvel", np.zeros((self.num_envs, NV))), dtype=np.float64).reshape(self.num_envs, NV)
+            self.qvel = np.array(options.get("qvel", np.zeros((self.num_envs, NV))),
+                                 dtype=np.float64).reshape(self.num_envs, NV)
         else:
             self.qpos, self.qvel = self.init.sample(self.np_random, self.num_envs)
         self.steps[:] = 0

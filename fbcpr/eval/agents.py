@@ -1,8 +1,9 @@
 """What the benchmark evaluates: any object with `act` plus the three prompt functions.
 
-Built in: the floor baselines RandomAgent and ZeroAgent (they ignore z). A loaded `fbcpr.BFM` is an Agent as
-it is; an NPMP checkpoint is an `fbcpr.apps.npmp.agent.NPMPAgent` (tracking only); a single-task checkpoint (TD3, on a task or an imitation reward) is wrapped as a `SingleTaskAgent`, which is
-evaluated on its own task. Later baselines plug in by offering the same methods.
+Built in: the floor baselines RandomAgent and ZeroAgent (they ignore z). A loaded `fbcpr.BFM` is an Agent as it is; an
+NPMP checkpoint is an `fbcpr.apps.npmp.agent.NPMPAgent` (tracking only); a single-task checkpoint (TD3, on a task or an
+imitation reward) is wrapped as a `SingleTaskAgent`, which is evaluated on its own task. Later baselines plug in by
+offering the same methods.
 """
 from __future__ import annotations
 
@@ -17,19 +18,27 @@ from humanoid_env.model import NU
 from humanoid_env.observation import OBS_DIM
 
 
+class Actor(Protocol):
+    """What a rollout needs of a policy: act(obs (N,358), z (N,d), mean) -> actions (N,69), anything array-like."""
+
+    def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> Any: ...
+
+
 @runtime_checkable
 class Agent(Protocol):
-    """act(obs (N,358), z (N,d), mean) -> actions (N,69) in [-1,1]; prompts map tasks to latent vectors."""
+    """act(obs (N,358), z (N,d), mean) -> actions (N,69) in [-1,1]; prompts map tasks to latent vectors (each
+    agent names its prompt's argument its own way, so the protocol takes it by position)."""
 
-    z_dim: int
+    @property
+    def z_dim(self) -> int: ...
 
     def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> np.ndarray: ...
 
-    def reward_z(self, reward: str | Callable[..., np.ndarray]) -> np.ndarray: ...
+    def reward_z(self, reward: str | Callable[..., np.ndarray], /) -> np.ndarray: ...
 
-    def goal_z(self, goal_obs: np.ndarray) -> np.ndarray: ...
+    def goal_z(self, goal_obs: np.ndarray, /) -> np.ndarray: ...
 
-    def track_z(self, obs_seq: np.ndarray) -> np.ndarray: ...
+    def track_z(self, obs_seq: np.ndarray, /) -> np.ndarray: ...
 
 
 class _Floor:

@@ -17,7 +17,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from fbcpr.core.checkpoint import CheckpointError
 from fbcpr.core.errors import InputError, PromptError
-from fbcpr.eval.agents import Agent, SingleTaskAgent, action_mapping
+from fbcpr.eval.agents import Actor, Agent, SingleTaskAgent, action_mapping
 from fbcpr.eval.rollout import Step, rollout
 from fbcpr.metrics import d_smpl, emd, goal_proximity, goal_success, imitation_scores, tracking_success
 from humanoid_env.observation import OBS_DIM
@@ -40,14 +40,14 @@ def _batch_z(z: np.ndarray, n: int) -> np.ndarray:
 class Rollouts:
     """One batched env reused for every task of a suite (and by prompt refinement for its candidates)."""
 
-    def __init__(self, agent: Agent, num_envs: int, steps: int, num_threads: int | None) -> None:
+    def __init__(self, agent: Actor, num_envs: int, steps: int, num_threads: int | None) -> None:
         from humanoid_env.vector import VectorHumanoidEnv
 
         self.env = VectorHumanoidEnv(num_envs, max_episode_steps=steps, num_threads=num_threads,
                                      action_mapping=action_mapping(agent))
         self.num_envs, self.steps = num_envs, steps
 
-    def run(self, agent: Agent, z_at: Callable[[int], np.ndarray], qpos: np.ndarray, qvel: np.ndarray,
+    def run(self, agent: Actor, z_at: Callable[[int], np.ndarray], qpos: np.ndarray, qvel: np.ndarray,
             on_step: Callable[[int, dict[str, Any], np.ndarray], None], advance: Callable[[], None]) -> None:
         """Roll out from (qpos, qvel); `on_step(t, info, alive)` sees every next state, in the step's
         `info["final_obs"]`, `info["final_qpos"]` and `info["final_qvel"]`."""
@@ -177,7 +177,7 @@ def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress, batch
     out: dict[str, Any] = {}
     bar = progress.add_task("tracking", total=sum(c.n_frames - 1 for c in clips))
     for start in range(0, len(clips), batch):
-        prompted = [(c, _prompt(report, "tracking", c.name, lambda c=c: agent.track_z(c.obs)))
+        prompted = [(c, _prompt(report, "tracking", c.name, lambda: agent.track_z(c.obs)))
                     for c in clips[start:start + batch]]
         for c, z in prompted:
             if z is None:
@@ -264,12 +264,14 @@ def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = Non
     if "tracking" in wanted and motions is None:
         raise InputError("the tracking suite needs motions (a MotionLibrary)")
     clip_names = list(motions.names) if motions is not None else []
-    single = isinstance(agent, SingleTaskAgent)  # evaluated on its own task: its reward, or the clips it imitates
-    imitation = single and agent.imitation is not None
+    # a single-task agent is evaluated on its own task: its reward, or the clips it imitates
+    single = agent if isinstance(agent, SingleTaskAgent) else None
+    imitation = single is not None and single.imitation is not None
     if tasks:
         chosen = _split_names(tasks, motions, wanted)
-    elif single:
-        chosen = {"reward": [agent.task] if agent.task else [], "goal": [], "tracking": clip_names if imitation else []}
+    elif single is not None:
+        chosen = {"reward": [single.task] if single.task else [], "goal": [],
+                  "tracking": clip_names if imitation else []}
     else:
         chosen = {"reward": list(TASKS), "goal": list(GOALS), "tracking": clip_names}
     results: dict[str, Any] = {"agent": agent_name or getattr(agent, "name", type(agent).__name__),
@@ -283,8 +285,10 @@ def evaluate(agent: Agent, suite: str = "all", tasks: Sequence[str] | None = Non
         if show_progress:
             progress.console.print(plan(chosen, wanted, episodes, steps, motions), highlight=False)
         if "reward" in wanted and chosen["reward"]:
+            assert init is not None  # drawn above for the reward and goal suites
             reward_suite(agent, chosen["reward"], episodes, init, progress, steps, num_threads, report)
         if "goal" in wanted and chosen["goal"]:
+            assert init is not None
             goal_suite(agent, chosen["goal"], episodes, init, progress, steps, num_threads, report)
         if "tracking" in wanted and chosen["tracking"]:
             by_name = {c.name: c for c in motions.clips}

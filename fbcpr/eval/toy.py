@@ -1,7 +1,7 @@
 """Zero-shot evaluation on the point mass: goal reaching, reward maximisation and demo imitation.
 
 The same protocol runs a trained model, an untrained one, or a uniform random policy (model=None), so
-the numbers in lab/log.md compare like with like. z inference follows App. C.5.3: z = B(goal),
+their numbers compare like with like. z inference follows App. C.5.3: z = B(goal),
 z_r ∝ Σ exp(10 r(s)) r(s) B(s) over reward-labelled states, and z_t ∝ Σ_{j=t+1}^{t+L} B(s_j) for tracking.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from fbcpr.envs import toy as pm
-from fbcpr.eval.rollout import rollout
+from fbcpr.eval.rollout import Step, rollout
 from fbcpr.eval.tracking import tracking_latents
 from fbcpr.metrics import dtw_pose_error, sparc, speed_profile
 from fbcpr.nn.latents import TEMPERATURE, reward_weights
@@ -80,10 +80,16 @@ def imitation(model: Any, rng: np.random.Generator, seq_length: int = 8) -> dict
         env = pm.PointMassVectorEnv(1, max_episode_steps=len(ref) + 1)
         obs, _ = env.reset(options={"qpos": ref[:1], "qvel": np.zeros((1, pm.NV))})
         zs = None if model is None else tracking_latents(model, ref, seq_length)
-        err: list[float] = []
-        rollout(env, obs, lambda t, o, zs=zs: _act(model, o, None if zs is None else zs[t: t + 1], rng),
-                len(ref) - 1, lambda step, ref=ref: err.append(np.linalg.norm(step.obs[0, :2] - ref[step.t + 1, :2])))
-        errs[name] = np.array(err)
+        err = np.empty(len(ref) - 1)
+
+        def act(t: int, o: np.ndarray, zs: torch.Tensor | None = zs) -> np.ndarray:
+            return _act(model, o, None if zs is None else zs[t: t + 1], rng)
+
+        def watch(step: Step, ref: np.ndarray = ref, err: np.ndarray = err) -> None:
+            err[step.t] = np.linalg.norm(step.obs[0, :2] - ref[step.t + 1, :2])
+
+        rollout(env, obs, act, len(ref) - 1, watch)
+        errs[name] = err
     all_err = np.concatenate(list(errs.values()))
     return {"track_error": float(all_err.mean()), "track_within_0.1": float((all_err < 0.1).mean()),
             **{f"track_error/{k}": float(v.mean()) for k, v in errs.items()}}

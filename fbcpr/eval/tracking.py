@@ -35,7 +35,8 @@ def track_clips(model: Any, bundle: EnvBundle, clip_ids: list[int], seq_length: 
     starts = [bundle.clip_start(i) for i in clip_ids]
     env = bundle.make_eval_env(len(clip_ids), horizon + 1)
     try:
-        obs, _ = env.reset(seed=0, options={"qpos": np.stack([s[0] for s in starts]), "qvel": np.stack([s[1] for s in starts])})
+        obs, _ = env.reset(seed=0, options={"qpos": np.stack([s[0] for s in starts]),
+                                            "qvel": np.stack([s[1] for s in starts])})
         traj = [obs]
 
         def act(t: int, o: np.ndarray) -> np.ndarray:

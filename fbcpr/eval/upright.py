@@ -70,7 +70,7 @@ def seconds_upright(heights: np.ndarray) -> np.ndarray:
 
 def got_up(heights: np.ndarray) -> np.ndarray:
     """Per episode, whether the pelvis stayed above `STANDING` over the whole last second."""
-    return (heights[-CONTROL_HZ:] > STANDING).all(0)
+    return np.asarray((heights[-CONTROL_HZ:] > STANDING).all(0))
 
 
 def fall_starts_got_up(agent: Any, episodes: int, steps: int, seed: int, prompt: str | np.ndarray = STAND_PROMPT,

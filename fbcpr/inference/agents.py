@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -11,6 +11,7 @@ from fbcpr.core.checkpoint import MANIFEST_FILE, load_checkpoint, read_manifest
 from fbcpr.core.registry import OFFLINE_MODELS, get_method, load
 from fbcpr.eval.agents import Agent, RandomAgent, SingleTaskAgent, ZeroAgent
 from fbcpr.inference.bfm import BFM, resolve_checkpoint
+from fbcpr.methods.fb_cpr.model import FBCPRModel
 
 
 def make_agent(spec: str, seed: int = 0, device: str = "cpu") -> Agent:
@@ -26,7 +27,8 @@ def make_agent(spec: str, seed: int = 0, device: str = "cpu") -> Agent:
         return npmp
     ckpt = load_checkpoint(path, device)
     if get_method(ckpt.algorithm).promptable:
-        return BFM(ckpt.model, ckpt.config, source=spec, checkpoint=ckpt)
+        # a prompt-able method's model is what a BFM wraps
+        return BFM(cast(FBCPRModel, ckpt.model), ckpt.config, source=spec, checkpoint=ckpt)
     return SingleTaskAgent(ckpt.model, ckpt.config, spec)
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 import tempfile
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 import torch
@@ -35,7 +35,7 @@ from fbcpr.core.checkpoint import (
 )
 from fbcpr.core.config import portable_config
 from fbcpr.core.errors import InputError
-from fbcpr.core.schema import Config, ModelConfig, config_to_dict, env_of
+from fbcpr.core.schema import Config, ModelConfig, batch_config, config_to_dict, env_of
 from fbcpr.inference.prompt import Prompt
 from fbcpr.inference.reward_prompts import RewardPrompts, load_reward_prompts, weights_digest
 from fbcpr.methods.fb_cpr.config import AgentConfig
@@ -71,9 +71,12 @@ class BFM:
         self.source = source
         self._reward_buffer = reward_buffer
         self._checkpoint = checkpoint  # lazy access to reward_buffer.safetensors
+        #: z's of named tasks inferred at export from more states than the checkpoint keeps
+        #: (`fbcpr.inference.reward_prompts`)
+        self.reward_prompts = reward_prompts
         stored = checkpoint.reward_prompts() if checkpoint is not None and reward_prompts is None else None
-        #: z's of named tasks inferred at export from more states than the checkpoint keeps (`fbcpr.inference.reward_prompts`)
-        self.reward_prompts = reward_prompts if stored is None else load_reward_prompts(*stored, model, checkpoint.path)
+        if checkpoint is not None and stored is not None:
+            self.reward_prompts = load_reward_prompts(*stored, model, checkpoint.path)
         self._prompt: Prompt | None = None
         self._samples: tuple[tuple[int, int], dict[str, np.ndarray], torch.Tensor] | None = None
         self._buffer_checked = False
@@ -94,6 +97,7 @@ class BFM:
         if ckpt.algorithm != "fb_cpr":
             raise CheckpointError(f"{path}: holds a {ckpt.algorithm} agent, not a prompt-able FB-CPR model "
                                   "(evaluate it with `fbcpr eval`, which runs any agent)")
+        assert isinstance(ckpt.model, FBCPRModel)  # the model of an fb_cpr checkpoint
         return cls(ckpt.model, ckpt.config, source=str(path_or_repo_id), checkpoint=ckpt)
 
     @classmethod
@@ -108,11 +112,15 @@ class BFM:
 
     @property
     def obs_dim(self) -> int:
-        return int(self.model.cfg.obs_dim)
+        obs_dim = self.model.cfg.obs_dim
+        assert obs_dim is not None  # a built model has its sizes
+        return int(obs_dim)
 
     @property
     def action_dim(self) -> int:
-        return int(self.model.cfg.action_dim)
+        action_dim = self.model.cfg.action_dim
+        assert action_dim is not None
+        return int(action_dim)
 
     @property
     def z_dim(self) -> int:
@@ -131,7 +139,7 @@ class BFM:
     @property
     def sequence_length(self) -> int:
         """L of ER_FB, the training sequence length (the paper's 8 when the checkpoint has no agent config)."""
-        agent = self.config.agent if isinstance(self.config, Config) else AgentConfig()
+        agent = batch_config(self.config.agent) if isinstance(self.config, Config) else AgentConfig()
         return int(agent.seq_length)
 
     @property
@@ -171,7 +179,8 @@ class BFM:
         return self._prompt
 
     # --------------------------------------------------------------------------------- inference
-    def act(self, obs: ArrayLike, z: ArrayLike, mean: bool = True, generator: torch.Generator | None = None) -> ArrayLike:
+    def act(self, obs: ArrayLike, z: ArrayLike, mean: bool = True,
+            generator: torch.Generator | None = None) -> ArrayLike:
         """Actions in [-1, 1] for obs (obs_dim,) or (N, obs_dim) and z (z_dim,) or (N, z_dim).
 
         Returns the kind of `obs` (numpy or torch) with its batch convention; a single z is shared by a batch.
@@ -202,6 +211,15 @@ class BFM:
                              "was trained on)")
         a = a[0] if single else a
         return a if as_torch else a.cpu().numpy()
+
+    @overload
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: Literal[True]) -> torch.Tensor: ...
+
+    @overload
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: Literal[False] = False) -> np.ndarray: ...
+
+    @overload
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: bool) -> np.ndarray | torch.Tensor: ...
 
     def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: bool = False) -> np.ndarray | torch.Tensor:
         """B(s) for observations (obs_dim,) or (N, obs_dim) -> (N, z_dim), in chunks, under inference mode."""
@@ -259,8 +277,8 @@ class BFM:
 
         `reward_samples` keeps a seeded subsample of the reward buffer, `half` stores it as float16 and
         `states_only` drops its observations, which loading rebuilds from the states: the compact form a
-        checkpoint that ships with a package or an app needs (lab/log.md measures what a smaller buffer
-        costs in prompt quality). Stored reward prompts are written too, unless the weights changed since."""
+        checkpoint that ships with a package or an app needs (a smaller buffer costs some prompt quality).
+        Stored reward prompts are written too, unless the weights changed since."""
         buf = self.reward_buffer
         if buf is not None and reward_samples is not None:
             if reward_samples < 1:
@@ -268,12 +286,13 @@ class BFM:
             buf = self.reward_samples(reward_samples, seed=0)[0]
         cfg = portable_config(self.config) if isinstance(self.config, Config) else self.config
         prompts = self.reward_prompts  # dropped if the weights changed since they were inferred
-        keep = prompts is not None and prompts.digest == weights_digest(self.model)
+        keep = prompts if prompts is not None and prompts.digest == weights_digest(self.model) else None
         return save_checkpoint(path, self.model, cfg, reward_buffer=buf,
                                reward_dtype=torch.float16 if half else torch.float32, reward_obs=not states_only,
-                               reward_prompts=prompts.to_tensors() if keep else None)
+                               reward_prompts=keep.to_tensors() if keep is not None else None)
 
-    def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None, repo_id: str | None = None) -> Path:
+    def save_for_hub(self, path: str | Path, metrics: dict[str, float] | None = None,
+                     repo_id: str | None = None) -> Path:
         """The folder `push_to_hub` uploads: an inference checkpoint plus a README.md model card."""
         path = self.save(path)
         card = model_card(self, {**self.metrics, **(metrics or {})}, repo_id or "<owner>/<name>")
@@ -411,7 +430,8 @@ def _download(repo_id: str, revision: str | None, cache_dir: str | Path | None) 
         raise CheckpointError(f"{repo_id}: revision {revision!r} not found on the Hugging Face Hub") from None
     except (LocalEntryNotFoundError, IncompleteSnapshotError):
         raise CheckpointError(f"{repo_id}: no such checkpoint directory, and as a Hugging Face repo id it is not in "
-                              "the local cache (HF_HUB_OFFLINE=1 or no network): download it once while online") from None
+                              "the local cache (HF_HUB_OFFLINE=1 or no network): download it once while "
+                              "online") from None
     except HfHubHTTPError as err:
         raise CheckpointError(f"{repo_id}: Hugging Face Hub error ({err})") from None
 

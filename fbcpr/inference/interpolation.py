@@ -4,11 +4,11 @@ A run continued from a model (`--init-from`) can gain skills (balance under push
 (some reward tasks). Averaging the weights of the two, tensor by tensor, often keeps most of both: Wortsman et al.
 (2022, "Robust fine-tuning of zero-shot models", WiSE-FT) show this for a model and its fine-tuned copy, which
 stay in one basin of the loss. It only makes sense for two checkpoints where one was trained on from the other;
-two independent runs have unrelated weights and their average is noise. lab/log.md sections 19-20 measure it.
+two independent runs have unrelated weights and their average is noise.
 
 A continuation's reward states are its own last replay states, and prompts inferred from them can be worse than
-from its base's: section 41's average of six continuations stood 5.5 s under the stand prompt with them and the
-whole 10 s with the shipped model's. `with_reward_states` pairs one model's weights with the states of one or more
+from its base's: an average of six continuations stood 5.5 s under the stand prompt with them and the whole 10 s
+with the shipped model's. `with_reward_states` pairs one model's weights with the states of one or more
 others.
 """
 from __future__ import annotations
@@ -51,12 +51,15 @@ def with_reward_states(model: BFM, donors: Sequence[BFM]) -> BFM:
     z size, or has no states."""
     if not donors:
         raise InputError("with_reward_states: give at least one model to take the reward states of")
+    given = []
     for donor in donors:
         check_compatible(model, donor, f"take the reward states of {donor.source} for {model.source}",
                          same_networks=False)
-        if donor.reward_buffer is None:
+        states = donor.reward_buffer
+        if states is None:
             raise CheckpointError(f"{donor.source} has no reward-inference states to give")
-    buffer = {k: np.concatenate([np.asarray(d.reward_buffer[k], np.float32) for d in donors]) for k in REWARD_KEYS}
+        given.append(states)
+    buffer = {k: np.concatenate([np.asarray(s[k], np.float32) for s in given]) for k in REWARD_KEYS}
     names = " and ".join(str(d.source) for d in donors)
     return BFM(model.model, model.config, reward_buffer=buffer,
                source=f"{model.source} with the reward states of {names}")

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Protocol, Union, get_args
+from typing import TYPE_CHECKING, Literal, Protocol, Union, get_args, overload
 
 import numpy as np
 import torch
@@ -49,23 +49,44 @@ GOAL_REWARD_SCALE = 2.0
 class StoredPrompts(Protocol):
     """z's a checkpoint stores by task name (`fbcpr.inference.reward_prompts.RewardPrompts`)."""
 
-    z: dict[str, np.ndarray]
+    @property
+    def z(self) -> dict[str, np.ndarray]: ...
 
 
 class PromptableModel(Protocol):
     """What prompting reads of a model (a `BFM`): its sizes, B, the projection and its reward-inference data."""
 
-    model: torch.nn.Module
-    source: str
-    obs_dim: int
-    z_dim: int
-    sequence_length: int
-    reward_buffer: dict[str, np.ndarray] | None
-    reward_prompts: StoredPrompts | None
+    @property
+    def model(self) -> torch.nn.Module: ...
+
+    @property
+    def source(self) -> str | None: ...
+
+    @property
+    def obs_dim(self) -> int: ...
+
+    @property
+    def z_dim(self) -> int: ...
+
+    @property
+    def sequence_length(self) -> int: ...
+
+    @property
+    def reward_buffer(self) -> dict[str, np.ndarray] | None: ...
+
+    @property
+    def reward_prompts(self) -> StoredPrompts | None: ...
 
     def reward_samples(self, n: int, seed: int = 0) -> tuple[dict[str, np.ndarray], torch.Tensor]: ...
 
-    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: bool = False) -> np.ndarray | torch.Tensor: ...
+    @overload
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: Literal[True]) -> torch.Tensor: ...
+
+    @overload
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: Literal[False] = False) -> np.ndarray: ...
+
+    @overload
+    def backward(self, obs: np.ndarray | torch.Tensor, as_tensor: bool) -> np.ndarray | torch.Tensor: ...
 
     def project_z(self, z: np.ndarray | torch.Tensor) -> np.ndarray: ...
 
@@ -114,8 +135,9 @@ class Prompt:
         temperature: float = TEMPERATURE,
         seed: int = 0,
     ) -> np.ndarray | None:
-        """The z the checkpoint stores for a named task (`fbcpr.inference.reward_prompts`), which `reward` returns under these
-        default settings; None for other settings, a callable, a combined or unstored name, or no stored prompts."""
+        """The z the checkpoint stores for a named task (`fbcpr.inference.reward_prompts`), which `reward` returns under
+        these default settings; None for other settings, a callable, a combined or unstored name, or no stored
+        prompts."""
         stored = self.bfm.reward_prompts
         if stored is None or not isinstance(task, str) or (method, n, temperature, seed) != (
                 "weighted", N_REWARD_SAMPLES, TEMPERATURE, 0):
@@ -240,7 +262,8 @@ def goal_observation(target: GoalSpec, obs_dim: int) -> np.ndarray:
             obs = arr
         else:
             raise PromptError(
-                f"a goal is a name, a qpos of shape ({NQ},) or an observation of shape ({obs_dim},); got shape {arr.shape}"
+                f"a goal is a name, a qpos of shape ({NQ},) or an observation of shape ({obs_dim},); "
+                f"got shape {arr.shape}"
             )
     obs = np.asarray(obs, dtype=np.float32).reshape(1, -1)
     if obs.shape[1] != obs_dim or not np.all(np.isfinite(obs)):

@@ -56,6 +56,12 @@ class Search:
         if self.elites is None and isinstance(self.population, (int, np.integer)):
             self.elites = max(1, int(self.population) // 4)
 
+    @property
+    def n_elites(self) -> int:
+        """`elites` as resolved by `__post_init__` (an int once `check` has passed)."""
+        assert self.elites is not None, "refine: elites unresolved; a Search with an integer population sets it"
+        return self.elites
+
     def check(self) -> None:
         """Every setting in range, named when not."""
         for name in ("generations", "population", "elites"):
@@ -65,7 +71,7 @@ class Search:
         if self.population < 2:
             raise PromptError(f"refine: population must be at least 2 (the mean and one perturbation), "
                               f"got {self.population}")
-        if self.elites > self.population:
+        if self.n_elites > self.population:
             raise PromptError(f"refine: elites ({self.elites}) cannot exceed population ({self.population})")
         for name in ("sigma", "decay"):
             value = getattr(self, name)
@@ -131,7 +137,7 @@ def cross_entropy(score: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, sea
         if on_generation is not None:
             on_generation(row)
         if not last:
-            elite = cands[np.argsort(scores)[-search.elites:]]
+            elite = cands[np.argsort(scores)[-search.n_elites:]]
             mean, sigma = project(elite.mean(0)[None])[0], sigma * search.decay
     return Refined(z=best_z.astype(np.float32), z0=z0.astype(np.float32), score=best, score0=first,
                    episodes=0, history=history)

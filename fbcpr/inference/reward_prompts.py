@@ -1,13 +1,12 @@
 """Reward prompts of the named tasks inferred once, at export, from more states than a checkpoint keeps.
 
 A reward prompt is a weighted regression over reward-inference states, z ∝ Σ exp(τ r) r B(s) (`fbcpr.inference.prompt`).
-With τ = 10 most of the weight falls on the few states of highest reward, so which states a sample holds moves z:
-two draws of 50,000 of one model's own states walked 70.9 and 85.8 under the walk prompt (lab/log.md section
-42). A checkpoint that ships keeps ~50k states within its size budget, while a named task's z is z_dim numbers (64):
-`infer_reward_prompts` regresses them on every state given to the export (500,000 from ten rollout runs in section 43),
-and the checkpoint stores them in reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the
-stored z for a named task under the default inference settings; a user's reward, a combined name or other settings
-are inferred from the subsample as before.
+With τ = 10 most of the weight falls on the few states of highest reward, so which states a sample holds moves z: two
+draws of 50,000 of one model's own states walked 70.9 and 85.8 under the walk prompt. A checkpoint that ships keeps ~50k
+states within its size budget, while a named task's z is z_dim numbers (64): `infer_reward_prompts` regresses them on
+every state given to the export (e.g. 500,000 from ten rollout runs), and the checkpoint stores them in
+reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the stored z for a named task under the default
+inference settings; a user's reward, a combined name or other settings are inferred from the subsample as before.
 
 The z's belong to the weights they were inferred with: their metadata records a digest of the model's tensors,
 a checkpoint whose weights do not match it is refused on load, and a save after the weights changed drops them.
@@ -18,7 +17,7 @@ import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import torch
@@ -28,11 +27,13 @@ from fbcpr.core.errors import InputError, PromptError
 from fbcpr.inference.prompt import PromptableModel, regress_reward, reward_fn
 from fbcpr.nn.latents import TEMPERATURE
 
+if TYPE_CHECKING:
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
+
 #: The inference method stored prompts were made with: `Prompt.reward`'s default.
-METHOD = "weighted"
+METHOD: Final = "weighted"
 #: Most states prompts are inferred from at once: B of a million states takes 1 GB beside their 1.4 GB of
-#: observations, and two pools of five own-states draws (250,000 states each) already agree to a cosine
-#: of 0.95 (section 43).
+#: observations, and two pools of five own-states draws (250,000 states each) already agree to a cosine of 0.95.
 MAX_STATES = 1_000_000
 #: Most prompts a file may store (the registry names 54 tasks): each one's name is parsed on load.
 MAX_PROMPTS = 4096
@@ -87,7 +88,7 @@ def infer_reward_prompts(bfm: PromptableModel, tasks: Sequence[str]) -> RewardPr
     return RewardPrompts(z, int(b.shape[0]), weights_digest(bfm.model))
 
 
-def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], model: torch.nn.Module,
+def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], model: FBCPRModel,
                         where: Path) -> RewardPrompts:
     """Check stored prompts against the model they were loaded with; CheckpointError naming `where` and the
     problem (other weights, other settings, a wrong shape, NaN, or a name the task registry does not know)."""

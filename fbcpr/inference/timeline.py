@@ -1,9 +1,9 @@
 """Timeline prompts: several prompts played back to back, e.g. walk 4 s, then jump 2 s, then sit 4 s.
 
-The text form is "ITEM:SECONDS,ITEM:SECONDS,...", where ITEM is a clip file or a built-in clip name (tracked
-frame by frame), a goal name, or a reward task (combined rewards like "move-ego-0-2*raisearms-l-l" included). Each segment turns into
-one z per control step (30 Hz); the policy switches z at segment boundaries and the state carries over, which
-is how a BFM stitches motions without any extra training.
+The text form is "ITEM:SECONDS,ITEM:SECONDS,...", where ITEM is a clip file or a built-in clip name (tracked frame by
+frame), a goal name, or a reward task (combined rewards like "move-ego-0-2*raisearms-l-l" included). Each segment turns
+into one z per control step (30 Hz); the policy switches z at segment boundaries and the state carries over, which is
+how a BFM stitches motions without any extra training.
 """
 from __future__ import annotations
 
@@ -108,6 +108,7 @@ class Timeline:
         segments = []
         for item, seconds in items:
             steps = max(1, int(round(seconds * fps)))
+            kind: Kind
             if isinstance(item, np.ndarray):
                 if item.shape != (prompt.bfm.z_dim,):
                     raise PromptError(f"timeline z must have shape ({prompt.bfm.z_dim},), got {item.shape}")

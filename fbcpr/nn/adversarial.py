@@ -21,7 +21,8 @@ def gradient_penalty(disc: Discriminator, s_expert: Tensor, z_expert: Tensor, s_
                      mix: Tensor) -> Tensor:
     """WGAN-GP (Gulrajani et al.): mean (||grad_{(s,z)} logit(x_hat)||_2 - 1)^2 on x_hat interpolating both s and z.
 
-    z is the second input: FB-CPR's latent or AMP's s'. mix: (n,) interpolation weights in [0, 1] (the expert weight)."""
+    z is the second input: FB-CPR's latent or AMP's s'. mix: (n,) interpolation weights in [0, 1] (the expert
+    weight)."""
     w = mix[:, None]
     s = (w * s_expert + (1 - w) * s_online).detach().requires_grad_(True)
     z = (w * z_expert + (1 - w) * z_online).detach().requires_grad_(True)

@@ -1,6 +1,6 @@
 """GraphedStep: one whole training step captured in a CUDA graph, then replayed.
 
-On the leased H100 a small FB-CPR update took 22-29 ms for 0.2-7 ms of matmuls (docs/benchmarks.md): its ~300
+On an H100 a small FB-CPR update took 22-29 ms for 0.2-7 ms of matmuls (docs/benchmarks.md): its ~300
 kernels and the Python that launches them set the time. Captured once, the whole step (losses, backward, the
 optimisers' steps, Polyak) replays with one launch. The inputs are copied into static tensors that the graph reads,
 and the outputs are the graph's own tensors, overwritten by every replay.
@@ -50,6 +50,7 @@ class GraphedStep:
                 return self.step(inputs)
         for key, value in inputs.items():
             self.static_inputs[key].copy_(value)
+        assert self.graph is not None  # set by the successful _capture above
         self.graph.replay()
         return self.static_outputs
 

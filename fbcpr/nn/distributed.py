@@ -46,6 +46,12 @@ from fbcpr.core.errors import ConfigError
 _ACTIVE: Replicas | None = None
 
 
+def _grad(p: Tensor) -> Tensor:
+    """The gradient of a parameter that the caller knows has one."""
+    assert p.grad is not None, "gradient averaging got a parameter without a gradient"
+    return p.grad
+
+
 class DistributedError(RuntimeError):
     """A collective failed (a rank died, was killed, or hung past the timeout) or the ranks disagree."""
 
@@ -118,23 +124,25 @@ class Replicas:
     def _is_synced(self, p: Tensor) -> bool:
         """Whether p.grad is the very tensor, unchanged, that the last average wrote (a new backward makes a new one,
         or bumps its version when it accumulates into it)."""
-        mark = self._synced.get(id(p))
-        return mark is not None and mark[0]() is p and mark[1]() is p.grad and mark[2] == p.grad._version
+        mark, grad = self._synced.get(id(p)), p.grad
+        return (mark is not None and grad is not None and mark[0]() is p and mark[1]() is grad
+                and mark[2] == grad._version)
 
     def average_gradients(self, params: list[Tensor]) -> None:
         """p.grad := mean over ranks of p.grad, one all-reduce per (dtype, device) over a flat buffer."""
         groups: dict[tuple[torch.dtype, torch.device], list[Tensor]] = {}
         for p in params:
-            groups.setdefault((p.grad.dtype, p.grad.device), []).append(p)
+            groups.setdefault((_grad(p).dtype, _grad(p).device), []).append(p)
         with self._collective("the gradient all-reduce"):
             for group in groups.values():
-                grads = [p.grad for p in group]
+                grads = [_grad(p) for p in group]
                 flat = torch.cat([g.reshape(-1) for g in grads]).to(self.device)
                 dist.all_reduce(flat)
                 flat = flat.div_(self.world_size).to(grads[0].device)
-                torch._foreach_copy_(grads, [f.view_as(g) for f, g in zip(flat.split([g.numel() for g in grads]), grads)])
+                parts = flat.split([g.numel() for g in grads])
+                torch._foreach_copy_(grads, [f.view_as(g) for f, g in zip(parts, grads)])
         for p in params:
-            self._synced[id(p)] = (weakref.ref(p), weakref.ref(p.grad), p.grad._version)
+            self._synced[id(p)] = (weakref.ref(p), weakref.ref(_grad(p)), _grad(p)._version)
 
     # ------------------------------------------------------------------------------- agreement and gathering
     def agree(self, stop: bool, ready: int) -> tuple[bool, int]:

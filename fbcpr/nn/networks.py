@@ -8,6 +8,7 @@ with frozen weights so its gradient reaches only the actor, with no extra backwa
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import torch
 import torch.nn.functional as F
@@ -72,6 +73,11 @@ class Stack(nn.Module):
         self.norm = EnsembleLayerNorm(sizes[1], members)
         self.final = final
 
+    @property
+    def first(self) -> EnsembleLinear:
+        """The first layer, whose input blocks `ZConditionedNet` evaluates separately."""
+        return cast(EnsembleLinear, self.layers[0])
+
     def forward(self, x: Tensor, detach_params: bool = False) -> Tensor:
         return self.forward_from(self.layers[0](x, detach_params), detach_params)
 
@@ -104,7 +110,7 @@ class ZConditionedNet(nn.Module):
     def __init__(self, obs_dim: int, extra_dim: int, z_dim: int, out_dim: int, hidden: int, hidden_layers: int,
                  embedding_layers: int, members: int) -> None:
         super().__init__()
-        self.members, self.obs_dim, self.half = members, obs_dim, hidden // 2
+        self.members, self.obs_dim, self.embed_width = members, obs_dim, hidden // 2
         self.embed_x = _embedding(obs_dim + extra_dim, hidden, embedding_layers, members)
         self.embed_z = _embedding(obs_dim + z_dim, hidden, embedding_layers, members)
         self.head = _Head(hidden // 2 * 2, hidden, hidden_layers, out_dim, members)
@@ -113,18 +119,18 @@ class ZConditionedNet(nn.Module):
         """The (s, z)-only parts: phi's first-layer pre-activation from s, and psi(s, z)'s contribution to the
         head's first layer. Reusable for any action at the same (s, z)."""
         ez = self.embed_z(torch.cat([obs, z], -1), detach_params)
-        x_pre = self.embed_x.layers[0].partial(obs, 0, self.obs_dim, detach_params, bias=True)
-        z_pre = self.head.layers[0].partial(ez, self.half, 2 * self.half, detach_params, bias=True)
+        x_pre = self.embed_x.first.partial(obs, 0, self.obs_dim, detach_params, bias=True)
+        z_pre = self.head.first.partial(ez, self.embed_width, 2 * self.embed_width, detach_params, bias=True)
         return x_pre, z_pre
 
     def forward(self, obs: Tensor, extra: Tensor | None, z: Tensor, detach_params: bool = False,
                 pre: tuple[Tensor, Tensor] | None = None) -> Tensor:
         x_pre, z_pre = self.precompute(obs, z, detach_params) if pre is None else pre
-        first = self.embed_x.layers[0]
+        first = self.embed_x.first
         if extra is not None:
             x_pre = first.partial(extra, self.obs_dim, first.in_features, detach_params, bias=False, add_to=x_pre)
         ex = self.embed_x.forward_from(x_pre, detach_params)
-        h = self.head.layers[0].partial(ex, 0, self.half, detach_params, bias=False, add_to=z_pre)
+        h = self.head.first.partial(ex, 0, self.embed_width, detach_params, bias=False, add_to=z_pre)
         return self.head.forward_from(h, detach_params)
 
 
@@ -135,6 +141,11 @@ class _Head(nn.Module):
         super().__init__()
         sizes = [in_dim] + [hidden] * hidden_layers + [out_dim]
         self.layers = nn.ModuleList(EnsembleLinear(a, b, members) for a, b in zip(sizes[:-1], sizes[1:]))
+
+    @property
+    def first(self) -> EnsembleLinear:
+        """The first layer, whose input blocks `ZConditionedNet` evaluates separately."""
+        return cast(EnsembleLinear, self.layers[0])
 
     def forward_from(self, h: Tensor, detach_params: bool = False) -> Tensor:
         """Continue from the first layer's pre-activation."""

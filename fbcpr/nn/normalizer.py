@@ -16,6 +16,10 @@ from fbcpr.nn import distributed
 class RunningNormalizer(nn.Module):
     """x -> (x - mean) / sqrt(var + eps); identity until the first `update`."""
 
+    mean: Tensor
+    var: Tensor
+    count: Tensor
+
     def __init__(self, dim: int, eps: float = 1e-5, enabled: bool = True) -> None:
         super().__init__()
         self.eps, self.enabled = eps, enabled

@@ -18,7 +18,9 @@ def optimizer_state(opt: torch.optim.Optimizer, prefix: str, tensors: dict[str, 
     return meta
 
 
-def load_optimizer_state(opt: torch.optim.Optimizer, prefix: str, meta: dict[str, Any], tensors: dict[str, Tensor]) -> None:
+def load_optimizer_state(opt: torch.optim.Optimizer, prefix: str, meta: dict[str, Any],
+                         tensors: dict[str, Tensor]) -> None:
     """Inverse of `optimizer_state`; KeyError / ValueError when the entries do not fit the optimiser."""
-    state = {int(idx): {key: tensors[f"{prefix}.{idx}.{key}"] for key in keys} for idx, keys in meta["state_keys"].items()}
+    state = {int(idx): {key: tensors[f"{prefix}.{idx}.{key}"] for key in keys}
+             for idx, keys in meta["state_keys"].items()}
     opt.load_state_dict({"state": state, "param_groups": meta["param_groups"]})

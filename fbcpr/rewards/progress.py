@@ -2,8 +2,8 @@
 
 r(s') = max_j p_j exp(-d_smpl(s', f_j) / scale) over every frame f_j of the env's clips, with p_j = (j + 1) / T the
 frame's place in its clip of T frames. Nothing is learnt: it is fixed, dense and has no phase, so it can pay from
-any start. It was written for getting up (lab/log.md section 29): along the getup clip a pose pays more the
-further up the rise it lies, a body lying as the clip starts earns almost nothing, and the risen end pays the most.
+any start. It was written for getting up: along the getup clip a pose pays more the further up the rise it lies,
+a body lying as the clip starts earns almost nothing, and the risen end pays the most.
 Where an adversarial reward saturates within thousands of updates on one short clip (docs/results-imitation.md),
 this one keeps its gradient toward the next frames. It is no tracking reward: a pose near a late frame pays the
 same whichever way it got there.

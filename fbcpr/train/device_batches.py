@@ -1,11 +1,11 @@
 """Update batches drawn on the training device (`train.device_buffer`).
 
-Drawn on the host, every update's batch is gathered by numpy from the replay buffer and the motion frames, then
-copied to the GPU while the GPU waits: about 10 ms an update on the first lease, as long as a graphed update
-itself. `DeviceBatches` keeps a copy of the buffer's training fields and of the motion frames on the device and
-draws each batch there with its own generator, so a draw is a few kernels queued behind the previous update and
-the host never waits for it. The replay buffer on the host stays the record (checkpoints, reward samples,
-rollout latents); the copy follows it row by row as transitions are added.
+Drawn on the host, every update's batch is gathered by numpy from the replay buffer and the motion frames, then copied
+to the GPU while the GPU waits: about 10 ms an update on an H100, as long as a graphed update itself. `DeviceBatches`
+keeps a copy of the buffer's training fields and of the motion frames on the device and draws each batch there with its
+own generator, so a draw is a few kernels queued behind the previous update and the host never waits for it. The replay
+buffer on the host stays the record (checkpoints, reward samples, rollout latents); the copy follows it row by row as
+transitions are added.
 """
 from __future__ import annotations
 

@@ -1,17 +1,17 @@
 """Online training loop of every method (Algorithm 1 with the protocol of App. C.5.1 for FB-CPR).
 
-Each iteration collects `rollout_steps` transitions from `num_envs` parallel envs (random actions during
-warm-up, then the policy with z ~ nu resampled every `z_update_every` steps), then runs
-`updates_per_rollout` gradient steps. The agent is the config's `algorithm` (`fbcpr.core.registry`), driven
-through `fbcpr.core.protocols.OnlineAgent`; z is its rollout latent (empty for single-task agents). Every `priority_every` env steps the policy tracks the clips and the
-motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the
-model, the exact learner state (target nets, optimisers, normaliser, counters, RNG states, env states and
-optionally the replay buffer) and a reward-inference subsample of the buffer. SIGINT/SIGTERM ends the
-run at the next safe point with a final checkpoint. Under torchrun every rank runs this loop on its own envs and
-replay shard with a replica of the learner, kept identical by `fbcpr.nn.distributed` (gradients averaged over ranks,
-normaliser statistics merged); step counts and periods are global, and only rank 0 writes. Optional packages
-degrade with one warning each: without tensorboard metrics go to metrics.csv only; without any EMD solver (POT, or
-scipy for the equal-length fallback) tracking evaluation and the priority refresh are skipped.
+Each iteration collects `rollout_steps` transitions from `num_envs` parallel envs (random actions during warm-up, then
+the policy with z ~ nu resampled every `z_update_every` steps), then runs `updates_per_rollout` gradient steps. The
+agent is the config's `algorithm` (`fbcpr.core.registry`), driven through `fbcpr.core.protocols.OnlineAgent`; z is its
+rollout latent (empty for single-task agents). Every `priority_every` env steps the policy tracks the clips and the
+motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the model, the exact
+learner state (target nets, optimisers, normaliser, counters, RNG states, env states and optionally the replay buffer)
+and a reward-inference subsample of the buffer. SIGINT/SIGTERM ends the run at the next safe point with a final
+checkpoint. Under torchrun every rank runs this loop on its own envs and replay shard with a replica of the learner,
+kept identical by `fbcpr.nn.distributed` (gradients averaged over ranks, normaliser statistics merged); step counts and
+periods are global, and only rank 0 writes. Optional packages degrade with one warning each: without tensorboard metrics
+go to metrics.csv only; without any EMD solver (POT, or scipy for the equal-length fallback) tracking evaluation and the
+priority refresh are skipped.
 """
 from __future__ import annotations
 
@@ -53,9 +53,9 @@ from fbcpr.core.checkpoint import (
     write_pointer,
 )
 from fbcpr.core.errors import ConfigError
-from fbcpr.core.protocols import EnvBundle, OnlineAgent
+from fbcpr.core.protocols import BF16Agent, EnvBundle, GraphedAgent, OnlineAgent
 from fbcpr.core.registry import get_method
-from fbcpr.core.schema import Config, TrainConfig
+from fbcpr.core.schema import BatchConfig, Config, TrainConfig, batch_config
 from fbcpr.envs.bundle import make_env
 from fbcpr.eval.tracking import tracking_scores
 from fbcpr.metrics import EMDUnavailable
@@ -120,7 +120,7 @@ class Trainer:
             if given is not None and given != have:
                 raise ConfigError(f"model.{key}: {given} does not match the {cfg.env.name} env ({have})")
         self.cfg = cfg = replace(cfg, model=replace(cfg.model, obs_dim=b.obs_dim, action_dim=b.action_dim))
-        if cfg.agent.batch_size > tc.buffer_capacity:
+        if batch_config(cfg.agent).batch_size > tc.buffer_capacity:
             raise ConfigError("train.buffer_capacity: must be >= agent.batch_size")
         self._memmap_buffer = check_memory(cfg, b.nq, b.nv, self.out, self.device, copies=r.local_world_size)
 
@@ -144,7 +144,7 @@ class Trainer:
         # a warm start's reader of that sample, for train.eval_at_start: prompts at step 0, and is let go after it
         self._loaded_sample: Callable[[], dict[str, np.ndarray] | None] | None = None
         self.warm_started = init_from is not None and not resume
-        if self.warm_started:
+        if self.warm_started and init_from is not None:
             self._warm_start(init_from)
         self.out.mkdir(parents=True, exist_ok=True)
         if r.is_main and (self.out / "checkpoints").is_dir():
@@ -161,13 +161,17 @@ class Trainer:
                                          seed=int(np.random.SeedSequence((seed, 1)).generate_state(1)[0]))
 
         self.env_steps = self.updates = self.episodes = 0
-        if getattr(cfg.agent, "bf16", False) == "auto":  # a choice timed on this machine: say which, as it changes speed
-            self.agent.bf16 = agree_on_bf16(self.agent.bf16, r)
-            self._notice(f"agent.bf16: auto chose {'bf16' if self.agent.bf16 else 'float32'} on {self.device.type} "
+        agent = self.agent
+        # bf16 "auto" is a choice timed on this machine: say which, as it changes speed
+        if getattr(cfg.agent, "bf16", False) == "auto":
+            assert isinstance(agent, BF16Agent)  # a method with a bf16 switch has the attribute
+            agent.bf16 = agree_on_bf16(agent.bf16, r)
+            self._notice(f"agent.bf16: auto chose {'bf16' if agent.bf16 else 'float32'} on {self.device.type} "
                          "(bf16 where its timed matmul is faster, fbcpr.nn.precision)")
         if getattr(cfg.agent, "cuda_graph", False):  # a speed switch that does nothing off CUDA: say so
+            assert isinstance(agent, GraphedAgent)  # as is one with a cuda_graph switch
             self._notice("agent.cuda_graph: " + ("the update is captured in a CUDA graph after 3 eager updates (a "
-                         "capture that fails warns and runs eagerly)" if self.agent.graphed else
+                         "capture that fails warns and runs eagerly)" if agent.graphed else
                          f"ignored on {self.device.type}"))
         self.next_priority = tc.priority_every or math.inf
         self.next_eval = 0 if tc.eval_at_start and tc.eval_every else (tc.eval_every or math.inf)
@@ -181,11 +185,12 @@ class Trainer:
         self._agreed_stop = False  # under torchrun: the stop decision every rank took together at the last phase end
         self._deadline = math.inf  # time.monotonic() at which run() stops (its `deadline`)
         self._saved_at: int | None = None  # env steps of the checkpoint on disk (none yet)
-        self._wall_before = 0.0  # seconds of training before this run() call, summed over the run's sessions
+        self._wall_before = 0.0  # seconds of training before this run() call, summed over the run's resumes
         self._run_t0: float | None = None  # time.perf_counter() at the start of the run() call in progress
         # train.keep_best (rank 0): the best value of the metric so far and the checkpoint folder it was measured at
         self.best: tuple[float, str] | None = None
-        # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands for
+        # reward-inference sample carried over a resume without the replay buffer, and how many transitions it stands
+        # for
         self._carried: dict[str, np.ndarray] | None = None
         self._carried_weight = 0
         self._updates_from = tc.warmup_steps  # env steps before the first update (later after a buffer-less resume)
@@ -203,16 +208,22 @@ class Trainer:
         self.csv_path = self.out / "metrics.csv"
         self._writer: Any = None  # SummaryWriter once created, False where tensorboard is missing
 
+    @property
+    def batching(self) -> BatchConfig:
+        """The method's `agent:` section, for the batch and window sizes that every method sets."""
+        return batch_config(self.cfg.agent)
+
     # --------------------------------------------------------------------------------- z for rollouts
     def _sample_rollout_z(self, n: int) -> torch.Tensor:
         """n rollout latents from the agent (FB-CPR's nu) given online states from the buffer and demo windows."""
-        L = self.cfg.agent.seq_length
+        L = self.batching.seq_length
         online = self.buffer.sample(self.rng, n, fields=("next_obs",))["next_obs"] if len(self.buffer) > 0 else None
         windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, n, L))
         return self.agent.rollout_z(n, online, windows)
 
     def _add_demonstrations(self, folder: Path, copies: int) -> None:
-        """train.demonstrations: the folder's transitions, `copies` times, into the replay buffer (and its device copy)."""
+        """train.demonstrations: the folder's transitions, `copies` times, into the replay buffer (and its device
+        copy)."""
         from motions.demonstrations import DemonstrationError, load_demonstrations, transitions
 
         cfg = self.cfg
@@ -229,8 +240,8 @@ class Trainer:
         cloned = cfg.train.demonstration_share and getattr(cfg.agent, "bc_weight", 0.0)
         for d in demos:
             if d.action_mapping != cfg.env.action_mapping:
-                raise ConfigError(f"train.demonstrations: {d.clip.name} was taken under the {d.action_mapping!r} action "
-                                  f"mapping, the env uses {cfg.env.action_mapping!r}")
+                raise ConfigError(f"train.demonstrations: {d.clip.name} was taken under the {d.action_mapping!r} "
+                                  f"action mapping, the env uses {cfg.env.action_mapping!r}")
             if d.labels is not None and not cloned:
                 raise ConfigError(f"train.demonstrations: {d.clip.name} carries an expert's labels, which only "
                                   "behaviour cloning reads: set train.demonstration_share and agent.bc_weight")
@@ -243,7 +254,8 @@ class Trainer:
             dev = self.batches.device if self.batches is not None else torch.device("cpu")
             self.demos = {k: torch.as_tensor(block[k], dtype=torch.float32, device=dev) for k in self.agent.fields}
             # their marks (False and zeros on the replay rows): every row is one, "demo_next" where the demonstration
-            # goes on, with the demonstrator's next action (a target that bootstraps on it: agent.bootstrap_demo_actions)
+            # goes on, with the demonstrator's next action (a target that bootstraps on it:
+            # agent.bootstrap_demo_actions)
             nxt = np.concatenate([np.concatenate([d.actions[1:], d.actions[-1:]]) for d in demos])
             last = np.concatenate([np.arange(len(d.actions)) == len(d.actions) - 1 for d in demos])
             self.demos["demo"] = torch.ones(n, dtype=torch.bool, device=dev)
@@ -269,7 +281,8 @@ class Trainer:
         must check it."""
         tc = self.cfg.train
         self._deadline = math.inf if deadline is None else deadline
-        stop_at = tc.total_env_steps if max_env_steps is None else min(tc.total_env_steps, self.env_steps + max_env_steps)
+        stop_at = (tc.total_env_steps if max_env_steps is None
+                   else min(tc.total_env_steps, self.env_steps + max_env_steps))
         handlers = self._install_signals()
         t0, steps0 = time.perf_counter(), self.env_steps
         self._run_t0 = t0
@@ -285,7 +298,7 @@ class Trainer:
                         if self._halt():
                             break
                     ready = self._agree()
-                    if self.env_steps >= self._updates_from and ready >= self.cfg.agent.batch_size:
+                    if self.env_steps >= self._updates_from and ready >= self.batching.batch_size:
                         for _ in range(tc.updates_per_rollout):
                             if self._halt():
                                 break
@@ -308,7 +321,7 @@ class Trainer:
 
     @property
     def wall_s(self) -> float:
-        """Seconds this run has trained, over all its sessions (resumes add to it): the x axis of wall-clock
+        """Seconds this run has trained, over all its starts (resumes add to it): the x axis of wall-clock
         learning curves (`wall_s` in metrics.csv)."""
         return self._wall_before + (time.perf_counter() - self._run_t0 if self._run_t0 is not None else 0.0)
 
@@ -359,7 +372,7 @@ class Trainer:
 
     def sample_batch(self) -> tuple[dict[str, Any], torch.Tensor]:
         """One update's draw, as training takes it: a replay batch and expert windows of the motion library."""
-        a = self.cfg.agent
+        a = self.batching
         if self.batches is not None:
             batch, windows = self.batches.sample(a.batch_size, a.batch_size // a.seq_length, a.seq_length)
         else:
@@ -375,11 +388,13 @@ class Trainer:
         """train.demonstration_share: the batch's first rows drawn (with replacement) from the demonstrations held
         apart; "demo" marks them, "demo_next" those whose demonstration goes on, with its next action in
         "demo_next_action", and "demo_target" holds their behaviour-cloning targets (zeros elsewhere)."""
+        demos = self.demos
+        assert demos is not None  # held apart whenever train.demonstration_share is set
         size = len(batch["obs"])
         k = round(self.cfg.train.demonstration_share * size)
-        idx = torch.as_tensor(self.rng.integers(0, len(self.demos["obs"]), size=k), device=batch["obs"].device)
+        idx = torch.as_tensor(self.rng.integers(0, len(demos["obs"]), size=k), device=batch["obs"].device)
         out = dict(batch)
-        for key, rows in self.demos.items():
+        for key, rows in demos.items():
             rest = batch[key][k:] if key in batch else rows.new_zeros((size - k, *rows.shape[1:]))
             out[key] = torch.cat([rows[idx].to(rest.dtype), rest])
         return out
@@ -453,7 +468,7 @@ class Trainer:
         rng = np.random.default_rng(self.env_steps)  # separate stream: evaluating never changes training
         failed = False
         try:  # under torchrun each rank tracks its share of the clips
-            scores = tracking_scores(self.agent.model, self.bundle, self.cfg.agent.seq_length, tc.priority_max_clips,
+            scores = tracking_scores(self.agent.model, self.bundle, self.batching.seq_length, tc.priority_max_clips,
                                      self.cfg.env.max_episode_steps, rng, stop=self._halt, shard=(r.rank, r.world_size))
         except EMDUnavailable as err:  # a run must not die for a missing metric package
             warnings.warn(f"tracking evaluation and priority refresh skipped, priorities stay as they are: {err}",
@@ -468,7 +483,8 @@ class Trainer:
                     "eval/tracking_success": float(np.mean([s for _, s in scores.values()]))}
             if refresh_priorities:
                 fill = float(np.median(list(self.emd.values())))
-                self.bundle.library.set_priorities_from_emd({n: self.emd.get(n, fill) for n in self.bundle.library.names})
+                self.bundle.library.set_priorities_from_emd({n: self.emd.get(n, fill)
+                                                             for n in self.bundle.library.names})
         if custom is not None:
             out.update({f"eval/{k}": float(v) for k, v in custom(self.agent).items()})
         return out
@@ -719,7 +735,8 @@ class Trainer:
                 self.batches.load_state(tensors["device_batches_generator"])
             self.z = tensors["z"].to(self.device)
             self.z_age = tensors["z_age"].numpy().copy()
-            self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(), "qvel": tensors["env_qvel"].numpy()})
+            self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(),
+                                                         "qvel": tensors["env_qvel"].numpy()})
             self.bundle.env.np_random.bit_generator.state = meta["env_rng"]
             _episode_counter(self.bundle.env)[:] = tensors["env_episode_steps"].numpy()
         except KeyError as e:
@@ -856,6 +873,8 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
     run on this machine (torchrun's ranks), each holding a model and a replay shard. Returns whether the buffer is
     memory-mapped (over train.buffer_memmap_mb)."""
     tc = cfg.train
+    obs_dim, action_dim = cfg.model.obs_dim, cfg.model.action_dim
+    assert obs_dim is not None and action_dim is not None, "check_memory: set model.obs_dim and action_dim first"
     with torch.device("meta"):  # shapes only: no memory is allocated
         model = get_method(cfg.algorithm).model(cfg.model)
     params = sum(p.numel() for p in model.parameters())
@@ -866,7 +885,7 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
         raise ConfigError(f"model: {params / 1e6:,.0f}M parameters need about {need / 2**30:,.1f} GiB to train, "
                           f"more than the {have / 2**30:,.1f} GiB of {device.type} memory; lower model.hidden_dim, "
                           "model.hidden_layers or model.preset")
-    specs = transition_specs(cfg.model.obs_dim, cfg.model.action_dim, getattr(model, "z_dim", 0), nq, nv)
+    specs = transition_specs(obs_dim, action_dim, getattr(model, "z_dim", 0), nq, nv)
     buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) * copies
     memmap = buffer > tc.buffer_memmap_mb * 2**20
     folder = next(p for p in (out, *out.absolute().parents) if p.exists())
@@ -888,12 +907,12 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
                           f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
                           "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
     if device.type == "cpu" and (0 if memmap else buffer) + model_ram + mirror * copies > ram:
-        raise ConfigError(f"train.device_buffer: its copy of the replay buffer needs {mirror * copies / 2**30:,.1f} GiB "
-                          f"of memory beside the buffer and the model, more than the {ram / 2**30:,.1f} GiB this "
+        raise ConfigError(f"train.device_buffer: its copy of the replay buffer needs {mirror * copies / 2**30:,.1f} "
+                          f"GiB of memory beside the buffer and the model, more than the {ram / 2**30:,.1f} GiB this "
                           "machine has; on the CPU the copy only costs memory: set it to false")
     # a full disk fails here, in one line, before TensorBoard's writer thread would fail with a long traceback.
     # One checkpoint: weights, two Adam moments and targets (4 copies), the reward sample, the buffer if saved.
-    ckpt = params * 16 + tc.reward_buffer_size * (cfg.model.obs_dim + nq + nv) * 4 + (buffer if tc.save_buffer else 0)
+    ckpt = params * 16 + tc.reward_buffer_size * (obs_dim + nq + nv) * 4 + (buffer if tc.save_buffer else 0)
     if ckpt + (buffer if memmap else 0) > free:
         raise CheckpointError(f"{folder}: {free / 2**20:,.0f} MiB free on disk, but one checkpoint of this run needs "
                               f"about {ckpt / 2**20:,.0f} MiB" + (f" beside the {buffer / 2**20:,.0f} MiB "
@@ -977,7 +996,9 @@ def _inf(x: float | None) -> float:
 
 
 def _np_global_state() -> list[Any]:
-    name, keys, pos, has_gauss, cached = np.random.get_state()
+    state = np.random.get_state()
+    assert isinstance(state, tuple)  # the global RandomState is an MT19937, whose legacy state is a tuple
+    name, keys, pos, has_gauss, cached = state
     return [name, keys.tolist(), int(pos), int(has_gauss), float(cached)]
 
 

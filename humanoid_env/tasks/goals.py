@@ -8,6 +8,7 @@ A goal is a full state with zero velocities; `goal_obs` is its observation.
 from __future__ import annotations
 
 import difflib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from typing import Any
@@ -36,7 +37,7 @@ class GoalPose:
     com_ahead: float = 0.0
 
 
-def _merge(*parts: dict[str, float]) -> dict[str, float]:
+def _merge(*parts: Mapping[str, float]) -> dict[str, float]:
     out: dict[str, float] = {}
     for p in parts:
         out.update(p)
@@ -45,13 +46,13 @@ def _merge(*parts: dict[str, float]) -> dict[str, float]:
 
 # Reusable limb settings (degrees). Left arm: x>0 raises it, z<0 swings it forward, y twists it so that elbow z
 # bends the forearm up (y<0) or down (y>0). The right arm mirrors: x and z angles change sign, y angles do not.
-ARMS_DOWN = {"L_Shoulder_x": -75, "R_Shoulder_x": 75}
-ARMS_LOW45 = {"L_Shoulder_x": -45, "R_Shoulder_x": 45}
-ARMS_UP = {"L_Shoulder_x": 85, "R_Shoulder_x": -85}
-ARMS_FORWARD = {"L_Shoulder_z": -90, "R_Shoulder_z": 90}
-ARMS_REACH = {"L_Shoulder_x": -45, "R_Shoulder_x": 45, "L_Shoulder_z": -60, "R_Shoulder_z": 60}
-L_FOREARM_UP = {"L_Shoulder_y": -90, "L_Elbow_z": -90}
-R_FOREARM_UP = {"R_Shoulder_y": -90, "R_Elbow_z": 90}
+ARMS_DOWN: dict[str, float] = {"L_Shoulder_x": -75, "R_Shoulder_x": 75}
+ARMS_LOW45: dict[str, float] = {"L_Shoulder_x": -45, "R_Shoulder_x": 45}
+ARMS_UP: dict[str, float] = {"L_Shoulder_x": 85, "R_Shoulder_x": -85}
+ARMS_FORWARD: dict[str, float] = {"L_Shoulder_z": -90, "R_Shoulder_z": 90}
+ARMS_REACH: dict[str, float] = {"L_Shoulder_x": -45, "R_Shoulder_x": 45, "L_Shoulder_z": -60, "R_Shoulder_z": 60}
+L_FOREARM_UP: dict[str, float] = {"L_Shoulder_y": -90, "L_Elbow_z": -90}
+R_FOREARM_UP: dict[str, float] = {"R_Shoulder_y": -90, "R_Elbow_z": 90}
 
 
 def _squat(thigh: float, shank: float, lean: float) -> dict[str, float]:

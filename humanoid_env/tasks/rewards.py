@@ -19,7 +19,8 @@ from humanoid_env.tasks.features import Features, as_obs_batch
 
 
 class RewardFn(Protocol):
-    name: str
+    @property
+    def name(self) -> str: ...
 
     def __call__(self, obs: np.ndarray, action: np.ndarray | None = None, qpos: np.ndarray | None = None,
                  qvel: np.ndarray | None = None) -> np.ndarray: ...
@@ -34,7 +35,7 @@ ARM_BANDS = {"l": (0.0, 1.0, 0.2), "m": (1.3, 1.55, 0.1), "h": (1.8, np.inf, 0.2
 def _tol(x: np.ndarray, lo: float, hi: float, margin: float, sigmoid: str = "linear",
          at_margin: float = 0.0) -> np.ndarray:
     # Imported here, not at the top: the training path names tasks (train.eval_tasks, checked by the config) without
-    # computing rewards, and must run where dm_control is absent (the GPU lease image, tests/test_training_deps.py).
+    # computing rewards, and must run where dm_control is absent (a minimal GPU image, tests/test_training_deps.py).
     from dm_control.utils.rewards import tolerance
 
     return tolerance(x, bounds=(lo, hi), margin=margin, sigmoid=sigmoid, value_at_margin=at_margin)
@@ -78,9 +79,12 @@ def _rotate_xy(d: np.ndarray, degrees: float) -> np.ndarray:
 
 
 class _Reward:
-    """Shared validation and the RewardFn call signature; subclasses implement `compute(Features)`."""
+    """Shared validation and the RewardFn call signature; subclasses implement `compute(Features)` and `name` (a
+    property or a dataclass field)."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        raise NotImplementedError
 
     def compute(self, f: Features) -> np.ndarray:
         raise NotImplementedError
@@ -294,8 +298,8 @@ class Headstand(_Reward):
 @dataclass(frozen=True)
 class HeadHeight(_Reward):
     """Head at or above `height` m, linearly from 0 with the head on the floor: not a task of the paper but a
-    reward for getting up, in which no posture on the floor pays more than a higher one (lab/log.md
-    section 24: a reward that pays for floor postures holds a single-task agent on the floor)."""
+    reward for getting up, in which no posture on the floor pays more than a higher one (a reward that pays for
+    floor postures holds a single-task agent on the floor)."""
 
     height: float
 
@@ -335,7 +339,7 @@ class Mean(_Reward):
         return "+".join(t.name for t in self.terms)
 
     def compute(self, f: Features) -> np.ndarray:
-        return sum(t.compute(f) for t in self.terms) / len(self.terms)
+        return np.asarray(sum(t.compute(f) for t in self.terms)) / len(self.terms)
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,8 @@
 """Import motion files of any supported format into clips: format autodetection, a conversion cache, one entry point.
 
 Formats: AMASS/SMPL `.npz` (direct joint-angle mapping), DeepMimic JSON and BVH (keypoint IK retargeting).
-Conversions are cached by file content hash (plus file name, options and converter version) under $FBCPR_CACHE_DIR or ~/.cache/fbcpr,
-so re-importing the same files is instant; delete that folder to force a fresh conversion.
+Conversions are cached by file content hash (plus file name, options and converter version) under $FBCPR_CACHE_DIR or
+~/.cache/fbcpr, so re-importing the same files is instant; delete that folder to force a fresh conversion.
 """
 from __future__ import annotations
 

@@ -94,7 +94,8 @@ def load_deepmimic(path: str | Path) -> SourceMotion:
     rot = {"pelvis": r_root, "chest": r_chest, "head": r_neck}
     soles = {}
     # side: (letter, hip quat col, knee col, ankle quat col, shoulder quat col, elbow col, +z sign)
-    for s, hip_c, knee_c, ankle_c, sh_c, elbow_c, sign in (("r", 16, 20, 21, 25, 29, 1.0), ("l", 30, 34, 35, 39, 43, -1.0)):
+    for s, hip_c, knee_c, ankle_c, sh_c, elbow_c, sign in (("r", 16, 20, 21, 25, 29, 1.0),
+                                                          ("l", 30, 34, 35, 39, 43, -1.0)):
         r_hip = r_root * _quat(f[:, hip_c:hip_c + 4], path, f"{s} hip")
         r_knee = r_hip * Rotation.from_rotvec(np.outer(f[:, knee_c], [0, 0, 1]))
         r_ankle = r_knee * _quat(f[:, ankle_c:ankle_c + 4], path, f"{s} ankle")

@@ -130,7 +130,8 @@ def _validate(d: ExpertData) -> None:
         raise DataError(f"episode_start must hold E + 1 offsets for E = {n_ep} episodes (>= 1), got {len(start)}")
     if int(start[0]) != 0 or int(start[-1]) != len(d.obs) or bool((start[1:] <= start[:-1]).any()):
         raise DataError(f"episode_start must rise strictly from 0 to N = {len(d.obs)}")
-    if bool((d.episode_clip < 0).any()) or bool((d.episode_clip >= len(d.clip_names)).any()) or bool((d.episode_frame < 0).any()):
+    if (bool((d.episode_clip < 0).any()) or bool((d.episode_clip >= len(d.clip_names)).any())
+            or bool((d.episode_frame < 0).any())):
         raise DataError(f"episode_clip must index the {len(d.clip_names)} clip names and episode_frame be >= 0")
     if d.method == "lfpc":
         want = (len(d.obs), d.action.shape[1], d.obs.shape[1])

@@ -56,6 +56,7 @@ class Distiller:
         idx = d.episode_start[ep][:, None] + torch.minimum(rel, n[:, None] - 1)
         frames, targets, mask = d.obs[idx], d.action[idx[:, :L]], rel[:, :L] < n[:, None]
         if d.method == "lfpc":
+            assert d.jacobian is not None  # LFPC data is checked to hold its Jacobians
             delta = torch.randn(frames.shape, generator=self.gen) * d.perturb_std
             frames = frames + delta
             feedback = torch.einsum("blad,bld->bla", d.jacobian[idx[:, :L]].float(), delta[:, :L])
@@ -116,7 +117,8 @@ def distill(out: Path, data: ExpertData, cfg: NPMPConfig, steps: int, info: dict
         info = {k: v for k, v in ckpt.info.items() if k not in ("config", "obs_dim", "action_dim", "metrics", "steps")}
     else:
         if (root / "latest").exists():
-            raise FileExistsError(f"{out} already holds an NPMP run; pass --resume to continue it or choose another --out")
+            raise FileExistsError(f"{out} already holds an NPMP run; pass --resume to continue it or choose another "
+                                  "--out")
         model = NPMPModel(cfg, data.obs.shape[1], data.action.shape[1])
         model.obs_normalizer.update(data.obs)  # fixed statistics of the expert states
         distiller = Distiller(model, data)

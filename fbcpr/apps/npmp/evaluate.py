@@ -30,5 +30,6 @@ def relative_to_expert(npmp: dict[str, dict[str, float]], expert: dict[str, dict
         summary[split] = {"clips": len(rows), "emd": float(col["emd"].mean()),
                           "emd_expert": float(col["emd_expert"].mean()),
                           "relative_emd_median": float(np.median(col["relative_emd"])),
-                          "success": float(col["success"].mean()), "success_expert": float(col["success_expert"].mean())}
+                          "success": float(col["success"].mean()),
+                          "success_expert": float(col["success_expert"].mean())}
     return {"clips": dict(sorted(clips.items())), "summary": summary}

@@ -6,8 +6,8 @@ B(s') feeds the FB loss, the orthonormality loss, Sigma_B and the online-goal re
 embeddings of F and Q feed both their TD losses and the actor loss; the actor's next action and the
 target nets feed both TD targets; expert and online states go through the discriminator in one batch.
 The actor loss evaluates F and Q with detached weights, so one backward leaves them untouched by it.
-With `agent.regulariser: near` a z-conditioned energy (`fbcpr.rewards.near.conditional`) takes the discriminator's place:
-its DSM loss joins the one backward and its anchored energy is the critic's reward.
+With `agent.regulariser: near` a z-conditioned energy (`fbcpr.rewards.near.conditional`) takes the discriminator's
+place: its DSM loss joins the one backward and its anchored energy is the critic's reward.
 A continued run can hold B and the normaliser fixed (`agent.freeze_backward`) and anchor the actor on demonstration
 states (`agent.anchor_actor`, `fbcpr.methods.fb_cpr.anchor`), and on the batch's states under named reward prompts
 (`agent.anchor_rewards`).
@@ -72,8 +72,10 @@ class FBCPRAgent:
                               "the held reward prompts")
         self.held_rewards = {k: task_reward(k) for k in agent_cfg.anchor_rewards} if task_reward else {}
         self.anchor = ActorAnchor(self.model, len(self.held_rewards)) if agent_cfg.anchor_actor > 0 else None
-        self.energy: ConditionalEnergy | None = None  # the NEAR regulariser, which replaces the discriminator's training
+        # the NEAR regulariser, which replaces the discriminator's training
+        self.energy: ConditionalEnergy | None = None
         if agent_cfg.regulariser == "near":
+            assert model_cfg.obs_dim is not None  # FBCPRModel above refuses a config without it
             self.energy = ConditionalEnergy(model_cfg.obs_dim, model_cfg.z_dim, agent_cfg.near).to(self.device)
             del trained["discriminator"]
             trained["energy"] = (self.energy.energy, agent_cfg.near.lr)
@@ -96,8 +98,10 @@ class FBCPRAgent:
 
     @classmethod
     def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> FBCPRAgent:
-        return cls(cfg.model, cfg.agent, device, seed,
-                   task_reward=bundle.task_reward if cfg.agent.anchor_rewards else None)
+        agent_cfg = cfg.agent
+        assert isinstance(agent_cfg, AgentConfig)  # what a config of algorithm fb_cpr reads its agent section as
+        return cls(cfg.model, agent_cfg, device, seed,
+                   task_reward=bundle.task_reward if agent_cfg.anchor_rewards else None)
 
     @property
     def z_dim(self) -> int:
@@ -302,13 +306,15 @@ class FBCPRAgent:
             if sample is None:
                 raise ConfigError("agent.anchor_rewards: the --init-from checkpoint has no reward-inference sample, "
                                   "so there are no reward prompts to hold")
+            # anchor_rewards needs anchor_actor (the config checks it), and the anchor then holds a prompt per task
+            assert self.anchor is not None and self.anchor.prompts is not None
             self.anchor.prompts.copy_(reward_prompts(self.model, sample, self.held_rewards))
 
     @torch.no_grad()
     def soft_update(self) -> None:
         """Polyak averaging target <- (1 - tau) target + tau online, one fused op over all tensors."""
-        tgt = [p for k in TARGETS for p in self.targets[k].parameters()]
-        src = [p for k in TARGETS for p in getattr(self.model, k).parameters()]
+        tgt: list[Tensor] = [p for k in TARGETS for p in self.targets[k].parameters()]
+        src: list[Tensor] = [p for k in TARGETS for p in getattr(self.model, k).parameters()]
         torch._foreach_lerp_(tgt, src, self.cfg.tau)
 
     # ------------------------------------------------------------------------------------- state
@@ -350,4 +356,5 @@ class FBCPRAgent:
             self.generator.set_state(tensors["agent_generator"])
             self.num_updates = int(meta["num_updates"])
         except (KeyError, ValueError, RuntimeError) as e:
-            raise CheckpointError(f"trainer_state.safetensors: optimizer/generator state does not match ({e})") from None
+            raise CheckpointError(f"trainer_state.safetensors: optimizer/generator state does not match "
+                                  f"({e})") from None

@@ -1,14 +1,14 @@
 """Holding a continued run near the model it started from (`agent.anchor_actor`; not in the paper).
 
 A run warm-started from a model (`--init-from`) learns new skills, such as balance under pushes, and loses prompt
-quality. lab/log.md section 25 split that loss between the two halves of a continued model: the loaded
-model's goal z's brought one continued actor back to the loaded model's goal success (hence `agent.freeze_backward`,
-which holds B and the normaliser), while its tracking worsened with the actor itself. Tracking prompts the actor
-with ER_FB latents of demonstration windows, so the anchor penalises the actor for moving its mean on demonstration
-states under their own latents, and leaves it free elsewhere: on fall and push states, and under reward prompts.
-Section 25 then found that the reward tasks were what a held run still lost, so `agent.anchor_rewards` names reward
-tasks whose prompts the anchor holds too: the batch's states under each task's z, inferred once, through the frozen
-B, from the loaded model's reward-inference sample, as a reward prompt of the loaded model infers it.
+quality. That loss splits between the two halves of a continued model: the loaded model's goal z's brought one
+continued actor back to the loaded model's goal success (hence `agent.freeze_backward`, which holds B and the
+normaliser), while its tracking worsened with the actor itself. Tracking prompts the actor with ER_FB latents of
+demonstration windows, so the anchor penalises the actor for moving its mean on demonstration states under their own
+latents, and leaves it free elsewhere: on fall and push states, and under reward prompts. The reward tasks were then
+what a held run still lost, so `agent.anchor_rewards` names reward tasks whose prompts the anchor holds too: the
+batch's states under each task's z, inferred once, through the frozen B, from the loaded model's reward-inference
+sample, as a reward prompt of the loaded model infers it.
 """
 from __future__ import annotations
 

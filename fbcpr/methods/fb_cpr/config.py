@@ -28,7 +28,8 @@ class AgentConfig(MethodConfig):
     ortho_coef: float = _f(100.0, NON_NEGATIVE)
     fz_coef: float = _f(0.1, NON_NEGATIVE)
     actor_reg_coef: float = _f(0.01, NON_NEGATIVE)
-    action_penalty: float = _f(0.0, NON_NEGATIVE)  # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
+    # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
+    action_penalty: float = _f(0.0, NON_NEGATIVE)
     grad_penalty: float = _f(10.0, NON_NEGATIVE)
     # not in the paper, for runs continued with --init-from (`fbcpr.methods.fb_cpr.anchor`): hold B and the observation
     # normaliser at the loaded model's, so every prompt keeps its meaning; and pull the actor's mean on

@@ -49,7 +49,8 @@ def implicit_reward(B_next: Tensor, z: Tensor, ridge: float = 1e-6) -> Tensor:
         # no error check and two triangular solves: a checked factorisation, or a solver that reads its status on
         # the host, would wait for the device, which a captured update cannot (fbcpr.nn.cuda_graph)
         chol = torch.linalg.cholesky_ex(cov).L
-        solved = torch.linalg.solve_triangular(chol.mT, torch.linalg.solve_triangular(chol, z.T, upper=False), upper=True)
+        solved = torch.linalg.solve_triangular(chol.mT, torch.linalg.solve_triangular(chol, z.T, upper=False),
+                                               upper=True)
         return (B_next * solved.T).sum(-1)
 
 

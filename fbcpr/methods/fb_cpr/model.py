@@ -58,22 +58,23 @@ class FBCPRModel(nn.Module):
 
     # ------------------------------------------------------------------ public inference API
     @torch.no_grad()
-    def act(self, obs: ArrayLike, z: ArrayLike, mean: bool = True, generator: torch.Generator | None = None) -> ArrayLike:
+    def act(self, obs: ArrayLike, z: ArrayLike, mean: bool = True,
+            generator: torch.Generator | None = None) -> ArrayLike:
         """Action (N, action_dim) in [-1, 1] for raw observations (N, obs_dim) and latents (N, z_dim)."""
-        obs_t, z_t, to_np = self._in(obs), self._in(z), isinstance(obs, np.ndarray)
+        obs_t, z_t = self._in(obs), self._in(z)
         self._check(obs_t, self.cfg.obs_dim, "obs")
         self._check(z_t, self.cfg.z_dim, "z")
         obs_n = self.normalize(obs_t)
         a = self.actor_mean(obs_n, z_t) if mean else self.actor_sample(obs_n, z_t, generator)
-        return a.cpu().numpy() if to_np else a
+        return a.cpu().numpy() if isinstance(obs, np.ndarray) else a
 
     @torch.no_grad()
-    def backward(self, obs: ArrayLike) -> ArrayLike:  # type: ignore[override]
+    def backward(self, obs: ArrayLike) -> ArrayLike:
         """B of normalized observations: (N, obs_dim) -> (N, z_dim), on the sqrt(d) sphere."""
-        obs_t, to_np = self._in(obs), isinstance(obs, np.ndarray)
+        obs_t = self._in(obs)
         self._check(obs_t, self.cfg.obs_dim, "obs")
         b = self.backward_map(self.normalize(obs_t))
-        return b.cpu().numpy() if to_np else b
+        return b.cpu().numpy() if isinstance(obs, np.ndarray) else b
 
     def project_z(self, z: ArrayLike) -> ArrayLike:
         """Project latents onto the sqrt(d) sphere."""
@@ -91,6 +92,6 @@ class FBCPRModel(nn.Module):
         return t.float() if t.dtype != torch.float32 else t
 
     @staticmethod
-    def _check(x: Tensor, dim: int, name: str) -> None:
+    def _check(x: Tensor, dim: int | None, name: str) -> None:
         if x.dim() != 2 or x.shape[1] != dim:
             raise InputError(f"{name}: expected shape (N, {dim}), got {tuple(x.shape)}")

@@ -53,12 +53,14 @@ class TD3Agent:
         """TD3 on `agent.reward`: the env's registry task and/or an imitation reward of its demonstrations."""
         from fbcpr.core.registry import imitation_reward
 
-        rc = cfg.agent.reward
+        agent_cfg = cfg.agent
+        assert isinstance(agent_cfg, TD3Config)  # what a config of algorithm td3 reads its agent section as
+        rc = agent_cfg.reward
         rc.validate("agent.reward")
         task = bundle.task_reward(rc.task) if rc.task else None
-        imitation = (imitation_reward(rc.imitation, bundle.obs_dim, cfg.agent, device, seed, bundle.library)
+        imitation = (imitation_reward(rc.imitation, bundle.obs_dim, agent_cfg, device, seed, bundle.library)
                      if rc.imitation else None)
-        return cls(cfg.model, cfg.agent, device, seed, task_reward=task, imitation=imitation)
+        return cls(cfg.model, agent_cfg, device, seed, task_reward=task, imitation=imitation)
 
     # ------------------------------------------------------------------------------------- acting
     def rollout_z(self, n: int, online_next_obs: Tensor | None, expert_windows: Tensor) -> Tensor:
@@ -82,12 +84,12 @@ class TD3Agent:
         """task_weight * task(s') + imitation_weight * imitation(s, s') of raw replay transitions, (n,)."""
         rc, total = self.cfg.reward, None
         if self.task_reward is not None:
-            r = self.task_reward(*(batch[k].cpu().numpy() for k in ("next_obs", "qpos", "qvel")))
-            total = rc.task_weight * torch.as_tensor(np.asarray(r), dtype=torch.float32, device=self.device)
+            task_r = self.task_reward(*(batch[k].cpu().numpy() for k in ("next_obs", "qpos", "qvel")))
+            total = rc.task_weight * torch.as_tensor(np.asarray(task_r), dtype=torch.float32, device=self.device)
         if self.imitation is not None:
             seq = {"history": batch["history"]} if self.history else {}
-            r = rc.imitation_weight * self.imitation.reward(batch["obs"].to(self.device), batch["next_obs"].to(self.device),
-                                                            **seq)
+            r = rc.imitation_weight * self.imitation.reward(batch["obs"].to(self.device),
+                                                            batch["next_obs"].to(self.device), **seq)
             total = r if total is None else total + r
         assert total is not None, "agent.reward was validated to name a source"
         return total
@@ -166,4 +168,5 @@ class TD3Agent:
                 self.imitation.load_state({k[len("imitation."):]: v for k, v in tensors.items()
                                            if k.startswith("imitation.")}, meta["imitation"])
         except (KeyError, ValueError, RuntimeError) as e:
-            raise CheckpointError(f"trainer_state.safetensors: optimizer/generator state does not match ({e})") from None
+            raise CheckpointError(f"trainer_state.safetensors: optimizer/generator state does not match "
+                                  f"({e})") from None

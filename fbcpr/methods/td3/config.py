@@ -38,15 +38,16 @@ class TD3Config(MethodConfig):
     tau: float = _f(0.005, _check(lambda v: 0.0 < v <= 1.0, "must be in (0, 1]"))
     critic_pessimism: float = _f(0.0, NON_NEGATIVE)
     actor_pessimism: float = _f(0.0, NON_NEGATIVE)
-    action_penalty: float = _f(0.0, NON_NEGATIVE)  # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
+    # not in the paper: pull toward action 0 (`ensemble_td.action_penalty`)
+    action_penalty: float = _f(0.0, NON_NEGATIVE)
     # TD3+BC (Fujimoto & Gu, 2021) on the batch's demonstration rows (train.demonstration_share): the squared error
     # to their actions, scaled like action_penalty by the mean |Q|, so the policy's actions where it bootstraps on
-    # demonstrated states stay near those the critic was trained on (alone it slowed section 32's divergence and did
-    # not stop it: lab/log.md section 33)
+    # demonstrated states stay near those the critic was trained on (alone it slowed the critic's divergence on
+    # demonstration rows but did not stop it)
     bc_weight: float = _f(0.0, NON_NEGATIVE)
     # the TD target of a demonstration row bootstraps on the demonstrator's next action, not the policy's: a critic
     # that only saw demonstrated actions there overrates the policy's nearby ones, and its target carried that gap
-    # back along every demonstration, times 1 / (1 - discount) (lab/log.md section 33)
+    # back along every demonstration, times 1 / (1 - discount)
     bootstrap_demo_actions: bool = _f(False)
     bf16: bool | str = _f(False, _check(lambda v: isinstance(v, bool) or v == "auto", "must be true, false or 'auto'"))
     reward: RewardConfig = field(default_factory=RewardConfig)

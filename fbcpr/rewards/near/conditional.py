@@ -41,6 +41,9 @@ class ConditionalEnergy(nn.Module):
     """e(x, z) with its EMA copy and step normaliser (the state dict), the sigma ladder, the annealer and the
     transform's history. obs_n arguments are normalised by the FB-CPR model; steps are raw s' - s."""
 
+    sigmas: Tensor
+    _phase: Tensor
+
     def __init__(self, obs_dim: int, z_dim: int, cfg: NEARConfig) -> None:
         super().__init__()
         self.cfg = cfg

@@ -64,7 +64,8 @@ def make_pairs(expert: Tensor, agent: Tensor, others: Tensor | None, other_ids: 
     left, right, label, frame = [], [], [], []
 
     def add(lo: Tensor, ro: Tensor, y: float | Tensor, f: float | Tensor) -> None:
-        left.append(lo), right.append(ro)
+        left.append(lo)
+        right.append(ro)
         label.append(torch.as_tensor(y, device=dev, dtype=torch.float32).expand(len(lo)))
         frame.append(torch.as_tensor(f, device=dev, dtype=torch.float32).expand(len(lo)))
 

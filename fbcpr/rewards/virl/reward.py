@@ -38,7 +38,8 @@ def load_clips(spec: str) -> list[np.ndarray]:
     if path.exists():
         from motions.library import MotionLibrary
 
-        return [np.asarray(c.obs, dtype=np.float32) for c in MotionLibrary.load([path] if path.is_file() else path).clips]
+        library = MotionLibrary.load([path] if path.is_file() else path)
+        return [np.asarray(c.obs, dtype=np.float32) for c in library.clips]
     from fbcpr.envs.toy import demo_paths
 
     demos = demo_paths()
@@ -84,7 +85,8 @@ class VIRLReward:
         width = (cfg.seq_length, obs_dim)
         self.bank = torch.zeros(cfg.bank_size, *width, device=self.device)  # raw demonstration windows (FIFO)
         self.bank_pos = self.bank_fill = 0
-        self.others = [torch.as_tensor(c, device=self.device) for c in load_clips(cfg.multitask)] if cfg.multitask else []
+        self.others = ([torch.as_tensor(c, device=self.device) for c in load_clips(cfg.multitask)]
+                       if cfg.multitask else [])
         self._others_checked = False
 
     # ------------------------------------------------------------------------------------------- inputs
@@ -174,7 +176,8 @@ class VIRLReward:
             raise RuntimeError("VIRLReward: no demonstration windows yet (call fit first)")
         e, h = self.model.encode(self._inputs(seq.to(self.device, torch.float32)))
         eb, hb = self.model.encode(bank)
-        d = self.cfg.seq_reward_weight * torch.cdist(h, hb) + self.cfg.frame_reward_weight * torch.cdist(e[:, -1], eb[:, -1])
+        d = (self.cfg.seq_reward_weight * torch.cdist(h, hb)
+             + self.cfg.frame_reward_weight * torch.cdist(e[:, -1], eb[:, -1]))
         return d.min(1).values
 
     @torch.no_grad()
