@@ -93,6 +93,15 @@ class VectorHumanoidEnv(VectorEnv):
         self._steps = np.zeros(self.num_envs, np.int64)
         self._np_random, self._np_random_seed = seeding.np_random(None)
 
+    def get_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of (qpos, qvel, steps into the episode) of every env; an env whose simulation diverged gives its
+        last finite state. `reset(options={"qpos", "qvel"})` and `set_episode_steps` put them back."""
+        return self._good_qpos.copy(), self._good_qvel.copy(), self._steps.copy()
+
+    def set_episode_steps(self, steps: np.ndarray) -> None:
+        """The steps each env's episode has run (a resumed run truncates its episodes where they would have)."""
+        self._steps[:] = steps
+
     @property
     def reset_fallen_after(self) -> int:
         return self._clock.after

@@ -10,7 +10,8 @@ from fbcpr.train.buffer import ReplayBuffer, transition_specs
 from fbcpr.core.config import config_from_dict
 from fbcpr.core.errors import ConfigError
 from fbcpr.train.device_batches import DeviceBatches
-from fbcpr.train.trainer import Trainer, _memory_bytes, check_memory
+from fbcpr.train.resources import check_memory, memory_bytes
+from fbcpr.train.trainer import Trainer
 from motions.clip import from_qpos
 from test_fbcpr_trainer import state_of
 from test_fbcpr_trainer import tiny_cfg as trainer_cfg
@@ -151,7 +152,7 @@ def test_sequence_rewards_and_a_copy_that_cannot_fit_are_config_errors(tmp_path)
     cfg.model.obs_dim, cfg.model.action_dim = 2, 2
     specs = transition_specs(2, 2, cfg.model.z_dim, 2, 2)
     row, copy_row = ReplayBuffer.bytes_needed(1, specs), DeviceBatches.bytes_needed(1, specs, FIELDS)
-    cfg.train.buffer_capacity = int(_memory_bytes(CPU) / (row + copy_row / 2))
+    cfg.train.buffer_capacity = int(memory_bytes(CPU) / (row + copy_row / 2))
     with pytest.raises(ConfigError, match="^train.device_buffer: its copy of the replay buffer needs"):
         check_memory(cfg, 2, 2, tmp_path, CPU)
     cfg.train.device_buffer = False

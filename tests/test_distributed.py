@@ -208,7 +208,7 @@ def test_a_two_rank_checkpoint_resumes_on_one_process(two_ranks, tmp_path):
 
 
 def test_world_size_and_backend_limits_are_config_errors(monkeypatch):
-    from fbcpr.train.trainer import check_world_size
+    from fbcpr.train.schedule import check_world_size
 
     check_world_size(fbcpr_cfg(), 4)  # 16 steps = 4 ranks x 4 envs
     with pytest.raises(ConfigError, match=r"^train.rollout_steps: .* world sizes that fit: \[1, 2, 4\]"):

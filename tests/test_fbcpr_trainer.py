@@ -285,7 +285,7 @@ def test_progress_bar_keeps_steps_rate_and_eta_at_80_columns():
     from rich.console import Console
     from rich.progress import Progress
 
-    from fbcpr.train.trainer import progress_columns
+    from fbcpr.train.reporting import progress_columns
 
     con = Console(width=80, file=io.StringIO())
     bar = Progress(*progress_columns(), console=con, expand=True)
@@ -319,7 +319,7 @@ def test_cuda_without_cuda_leaves_no_run_directory(tmp_path):
 
 
 def test_retention_keeps_the_last_k_and_every_nth(tmp_path):
-    from fbcpr.train.trainer import prunable_checkpoints
+    from fbcpr.core.checkpoint import prunable_checkpoints
 
     for step in range(0, 1000, 100):
         (tmp_path / f"step_{step:010d}").mkdir()

@@ -534,12 +534,13 @@ def test_checkpoint_records_the_next_checkpoint_not_the_current_one(tmp_path):
 def test_memory_is_estimated_up_front_naming_the_key(tmp_path, monkeypatch, train, model, message):
     import shutil
 
+    import fbcpr.train.resources as resources
     import fbcpr.train.trainer as trainer_mod
     from fbcpr.core.config import config_from_dict
     from fbcpr.core.errors import ConfigError
 
-    monkeypatch.setattr(trainer_mod, "_memory_bytes", lambda device: 8 * 2**30)
-    monkeypatch.setattr(trainer_mod.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(2**40, 2**40 - 2**30, 2**30))
+    monkeypatch.setattr(resources, "memory_bytes", lambda device: 8 * 2**30)
+    monkeypatch.setattr(resources.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(2**40, 2**40 - 2**30, 2**30))
     cfg = config_from_dict({"model": {"preset": "tiny", **model}, "env": {"name": "toy"},
                             "train": {"num_envs": 2, **train}})
     with pytest.raises(ConfigError, match=message):
@@ -550,11 +551,12 @@ def test_memory_is_estimated_up_front_naming_the_key(tmp_path, monkeypatch, trai
 def test_a_full_disk_fails_in_one_line_before_anything_is_written(tmp_path, monkeypatch):
     import shutil
 
+    import fbcpr.train.resources as resources
     import fbcpr.train.trainer as trainer_mod
     from fbcpr.core.checkpoint import CheckpointError
     from fbcpr.core.config import config_from_dict
 
-    monkeypatch.setattr(trainer_mod.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(2**40, 2**40, 2**16))
+    monkeypatch.setattr(resources.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(2**40, 2**40, 2**16))
     cfg = config_from_dict({"model": {"preset": "tiny"}, "env": {"name": "toy"}, "train": {"num_envs": 2}})
     with pytest.raises(CheckpointError, match=r"MiB free on disk, but one checkpoint of this run needs about"):
         trainer_mod.Trainer(cfg, tmp_path / "run", progress=False)

@@ -308,6 +308,13 @@ def list_checkpoints(root: Path) -> list[Path]:
     return sorted(p for p in root.glob("step_*") if p.is_dir())
 
 
+def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Path]:
+    """Checkpoints that retention removes: all but the last `keep_last`, sparing those at multiples of
+    `keep_every` env steps (0: none spared)."""
+    steps = list_checkpoints(root)[:-keep_last]
+    return [p for p in steps if not (keep_every and int(p.name.split("_")[1]) % keep_every == 0)]
+
+
 def pointed_checkpoint(root: Path, pointer: str = "latest") -> Path:
     """The checkpoint that `root/<pointer>` names (`latest`, or `best` with `train.keep_best`); CheckpointError naming
     the pointer when it is missing, empty, or points anywhere but a sibling checkpoint folder (a loop such as `.`

@@ -53,6 +53,10 @@ class MethodConfig:
     def validate_run(self, run: Config) -> None:
         """ConfigError naming the key when this method cannot run with `run`'s other sections."""
 
+    def holds_loaded_model(self) -> list[str]:
+        """The keys set in this section that hold a run near the model it continues (they need --init-from)."""
+        return []
+
 
 @runtime_checkable
 class BatchConfig(Protocol):

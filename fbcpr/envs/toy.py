@@ -106,6 +106,13 @@ class PointMassVectorEnv(VectorEnv):
     def _obs(self) -> np.ndarray:
         return observe(self.qpos)
 
+    def get_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of (qpos, qvel, steps into the episode) of every env, as the humanoid's batched env gives them."""
+        return self.qpos.copy(), self.qvel.copy(), self.steps.copy()
+
+    def set_episode_steps(self, steps: np.ndarray) -> None:
+        self.steps[:] = steps
+
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         if seed is not None:
             self._np_random, _ = seeding.np_random(int(seed))

@@ -34,9 +34,7 @@ from typing import Any
 import numpy as np
 import torch
 from rich.console import Console
-from rich.progress import BarColumn, Progress, ProgressColumn, Task, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from rich.table import Column
-from rich.text import Text
+from rich.progress import Progress
 
 from fbcpr.core.checkpoint import (
     REPLAY_FILE,
@@ -44,9 +42,9 @@ from fbcpr.core.checkpoint import (
     discard_checkpoint,
     inconsistent_rows,
     latest_checkpoint,
-    list_checkpoints,
     load_checkpoint,
     load_state_strict,
+    prunable_checkpoints,
     read_trainer_meta,
     remove_stale_temporaries,
     save_checkpoint,
@@ -55,13 +53,16 @@ from fbcpr.core.checkpoint import (
 from fbcpr.core.errors import ConfigError
 from fbcpr.core.protocols import BF16Agent, EnvBundle, GraphedAgent, OnlineAgent
 from fbcpr.core.registry import get_method
-from fbcpr.core.schema import BatchConfig, Config, TrainConfig, batch_config
+from fbcpr.core.schema import BatchConfig, Config, batch_config
 from fbcpr.envs.bundle import make_env
 from fbcpr.eval.tracking import tracking_scores
 from fbcpr.metrics import EMDUnavailable
 from fbcpr.nn import distributed
 from fbcpr.train.buffer import ReplayBuffer, transition_specs
 from fbcpr.train.device_batches import DeviceBatches
+from fbcpr.train.reporting import progress_columns, summary_writer
+from fbcpr.train.resources import check_memory
+from fbcpr.train.schedule import check_world_size, phase_steps, rescheduled
 
 LIVE_KEYS = ("fb_loss", "actor_loss", "critic_loss", "disc_loss", "reward")
 #: |action| beyond which a component counts as saturated (at a joint limit's side of the PD range).
@@ -132,13 +133,8 @@ class Trainer:
         if r.enabled:
             torch.manual_seed(seed)
             self.agent.generator.manual_seed(seed)
-        held = [f"agent.{k}" for k in ("freeze_backward", "anchor_actor") if getattr(cfg.agent, k, False)]
-        held += ["train.keep_reward_sample"] if tc.keep_reward_sample else []
-        if held and init_from is None and not resume:
-            raise ConfigError(f"{held[0]}: holds a run near the model it continues, so it needs --init-from "
-                              "(a fresh run has no model to hold)")
-        if tc.eval_at_start and init_from is None and not resume:
-            raise ConfigError("train.eval_at_start: evaluates the model a run continues, so it needs --init-from")
+        if init_from is None and not resume:
+            _check_fresh(cfg)
         # the loaded model's reward-inference sample, which every checkpoint carries as it is (train.keep_reward_sample)
         self._kept_sample: dict[str, np.ndarray] | None = None
         # a warm start's reader of that sample, for train.eval_at_start: prompts at step 0, and is let go after it
@@ -161,18 +157,7 @@ class Trainer:
                                          seed=int(np.random.SeedSequence((seed, 1)).generate_state(1)[0]))
 
         self.env_steps = self.updates = self.episodes = 0
-        agent = self.agent
-        # bf16 "auto" is a choice timed on this machine: say which, as it changes speed
-        if getattr(cfg.agent, "bf16", False) == "auto":
-            assert isinstance(agent, BF16Agent)  # a method with a bf16 switch has the attribute
-            agent.bf16 = agree_on_bf16(agent.bf16, r)
-            self._notice(f"agent.bf16: auto chose {'bf16' if agent.bf16 else 'float32'} on {self.device.type} "
-                         "(bf16 where its timed matmul is faster, fbcpr.nn.precision)")
-        if getattr(cfg.agent, "cuda_graph", False):  # a speed switch that does nothing off CUDA: say so
-            assert isinstance(agent, GraphedAgent)  # as is one with a cuda_graph switch
-            self._notice("agent.cuda_graph: " + ("the update is captured in a CUDA graph after 3 eager updates (a "
-                         "capture that fails warns and runs eagerly)" if agent.graphed else
-                         f"ignored on {self.device.type}"))
+        self._announce_speed_switches()
         self.next_priority = tc.priority_every or math.inf
         self.next_eval = 0 if tc.eval_at_start and tc.eval_every else (tc.eval_every or math.inf)
         self.next_ckpt = tc.checkpoint_every or math.inf
@@ -207,6 +192,21 @@ class Trainer:
             r.check_replicated(self._learner_state(*self.agent.state()), "the learner state")
         self.csv_path = self.out / "metrics.csv"
         self._writer: Any = None  # SummaryWriter once created, False where tensorboard is missing
+
+    def _announce_speed_switches(self) -> None:
+        """Say what the speed switches chose on this machine: bf16 "auto" is timed here (and agreed by the ranks),
+        and a CUDA graph does nothing off CUDA."""
+        agent, cfg = self.agent, self.cfg
+        if getattr(cfg.agent, "bf16", False) == "auto":
+            assert isinstance(agent, BF16Agent)  # a method with a bf16 switch has the attribute
+            agent.bf16 = agree_on_bf16(agent.bf16, self.replicas)
+            self._notice(f"agent.bf16: auto chose {'bf16' if agent.bf16 else 'float32'} on {self.device.type} "
+                         "(bf16 where its timed matmul is faster, fbcpr.nn.precision)")
+        if getattr(cfg.agent, "cuda_graph", False):
+            assert isinstance(agent, GraphedAgent)  # as is one with a cuda_graph switch
+            self._notice("agent.cuda_graph: " + ("the update is captured in a CUDA graph after 3 eager updates (a "
+                         "capture that fails warns and runs eagerly)" if agent.graphed else
+                         f"ignored on {self.device.type}"))
 
     @property
     def batching(self) -> BatchConfig:
@@ -549,7 +549,7 @@ class Trainer:
         if not self.replicas.is_main:
             return
         if self._writer is None:
-            self._writer = _summary_writer(self.out / "tb") or False
+            self._writer = summary_writer(self.out / "tb") or False
         if self._writer:
             for k, v in row.items():
                 if k != "env_steps":
@@ -575,10 +575,11 @@ class Trainer:
         if not r.is_main:
             self._saved_at = self.env_steps
             return path
-        tensors.update({"torch_rng": torch.get_rng_state(), "env_qpos": torch.as_tensor(self._env_state()[0]),
-                        "env_qvel": torch.as_tensor(self._env_state()[1]), "env_obs": torch.as_tensor(self.obs),
+        qpos, qvel, episode_steps = self.bundle.env.get_state()
+        tensors.update({"torch_rng": torch.get_rng_state(), "env_qpos": torch.as_tensor(qpos),
+                        "env_qvel": torch.as_tensor(qvel), "env_obs": torch.as_tensor(self.obs),
                         "z": self.z.cpu(), "z_age": torch.as_tensor(self.z_age),
-                        "env_episode_steps": torch.as_tensor(_episode_counter(self.bundle.env)),
+                        "env_episode_steps": torch.as_tensor(episode_steps),
                         "priorities": torch.as_tensor(np.asarray(self.bundle.library.priorities, dtype=np.float64))})
         if torch.cuda.is_available():
             tensors["cuda_rng"] = torch.cuda.get_rng_state()
@@ -659,12 +660,6 @@ class Trainer:
             shutil.rmtree(self.buffer.memmap_dir, ignore_errors=True)
         self.replicas.close()
 
-    def _env_state(self) -> tuple[np.ndarray, np.ndarray]:
-        env = self.bundle.env
-        if hasattr(env, "_good_qpos"):
-            return np.asarray(env._good_qpos), np.asarray(env._good_qvel)
-        return np.asarray(env.qpos), np.asarray(env.qvel)
-
     def _warm_start(self, src: str | Path) -> None:
         """Start from the weights of any checkpoint, inference-only ones included (the shipped model): networks,
         targets (= the networks) and normaliser; fresh optimisers and an empty replay buffer, which the warm-up
@@ -708,9 +703,9 @@ class Trainer:
         try:
             self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
             tc = self.cfg.train
-            self.next_priority = _rescheduled(_inf(meta["next_priority"]), tc.priority_every, self.env_steps)
-            self.next_eval = _rescheduled(_inf(meta["next_eval"]), tc.eval_every, self.env_steps)
-            self.next_ckpt = _rescheduled(_inf(meta["next_ckpt"]), tc.checkpoint_every, self.env_steps)
+            self.next_priority = rescheduled(_inf(meta["next_priority"]), tc.priority_every, self.env_steps)
+            self.next_eval = rescheduled(_inf(meta["next_eval"]), tc.eval_every, self.env_steps)
+            self.next_ckpt = rescheduled(_inf(meta["next_ckpt"]), tc.checkpoint_every, self.env_steps)
             self.next_log, self.emd = meta["next_log"], meta["emd"]
             self._wall_before = float(meta.get("wall_s", 0.0))  # checkpoints from before it was recorded: 0
             best = meta.get("best")
@@ -738,7 +733,7 @@ class Trainer:
             self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(),
                                                          "qvel": tensors["env_qvel"].numpy()})
             self.bundle.env.np_random.bit_generator.state = meta["env_rng"]
-            _episode_counter(self.bundle.env)[:] = tensors["env_episode_steps"].numpy()
+            self.bundle.env.set_episode_steps(tensors["env_episode_steps"].numpy())
         except KeyError as e:
             raise CheckpointError(f"{ckpt.path}/trainer_state.safetensors: missing entry {e}") from None
         replay = ckpt.replay_buffer()
@@ -836,155 +831,25 @@ class Trainer:
                                               metrics=self._metric_text())
 
 
-def progress_columns() -> list[ProgressColumn]:
-    """Training bar columns: steps, rate, elapsed and ETA keep their width; the metrics (a `metrics` task field)
-    take what is left and are cut first, so the bar stays readable at 80 columns."""
-    def fixed() -> Column:
-        return Column(no_wrap=True)
-
-    return [BarColumn(bar_width=10), TextColumn("{task.completed:,}/{task.total:,}", table_column=fixed()),
-            _RateColumn(table_column=fixed()), TimeElapsedColumn(table_column=fixed()),
-            TextColumn("eta", table_column=fixed()), TimeRemainingColumn(table_column=fixed()),
-            TextColumn("{task.fields[metrics]}", table_column=Column(no_wrap=True, overflow="ellipsis", ratio=1))]
-
-
-class _RateColumn(ProgressColumn):
-    """Env steps per second."""
-
-    def render(self, task: Task) -> Text:
-        return Text(f"{task.speed:,.0f}/s" if task.speed else "-/s")
-
-
-#: Bytes per model parameter during training: weights, gradients, two Adam moments and a target copy.
-BYTES_PER_PARAMETER = 20
-
-
-def _memory_bytes(device: torch.device) -> int:
-    """Total memory of the device the model trains on (RAM for the CPU)."""
-    if device.type == "cuda":
-        return int(torch.cuda.get_device_properties(device).total_memory)
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-
-
-def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device, copies: int = 1) -> bool:
-    """Estimate the model's and the replay buffer's memory before allocating either, and raise ConfigError
-    naming the key to lower when they cannot fit, instead of an allocation failing (or the OOM killer striking)
-    minutes later; CheckpointError when the disk at `out` cannot hold one checkpoint. `copies`: processes of this
-    run on this machine (torchrun's ranks), each holding a model and a replay shard. Returns whether the buffer is
-    memory-mapped (over train.buffer_memmap_mb)."""
-    tc = cfg.train
-    obs_dim, action_dim = cfg.model.obs_dim, cfg.model.action_dim
-    assert obs_dim is not None and action_dim is not None, "check_memory: set model.obs_dim and action_dim first"
-    with torch.device("meta"):  # shapes only: no memory is allocated
-        model = get_method(cfg.algorithm).model(cfg.model)
-    params = sum(p.numel() for p in model.parameters())
-    need, have = params * BYTES_PER_PARAMETER, _memory_bytes(device)
-    if device.type == "cpu":
-        need *= copies
-    if need > have:
-        raise ConfigError(f"model: {params / 1e6:,.0f}M parameters need about {need / 2**30:,.1f} GiB to train, "
-                          f"more than the {have / 2**30:,.1f} GiB of {device.type} memory; lower model.hidden_dim, "
-                          "model.hidden_layers or model.preset")
-    specs = transition_specs(obs_dim, action_dim, getattr(model, "z_dim", 0), nq, nv)
-    buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) * copies
-    memmap = buffer > tc.buffer_memmap_mb * 2**20
-    folder = next(p for p in (out, *out.absolute().parents) if p.exists())
-    free = shutil.disk_usage(folder).free
-    if memmap and buffer > free:
-        raise ConfigError(f"train.buffer_capacity: the memory-mapped replay buffer needs {buffer / 2**30:,.1f} GiB "
-                          f"on disk, more than the {free / 2**30:,.1f} GiB free at {folder}")
-    # train.device_buffer: the training fields once more, on the device (one copy per rank; on the CPU, in RAM)
-    mirror = DeviceBatches.bytes_needed(tc.buffer_capacity, specs, get_method(cfg.algorithm).agent_class().fields) \
-        if tc.device_buffer else 0
-    if device.type == "cuda" and need + mirror > have:
-        raise ConfigError(f"train.device_buffer: the replay batches' copy needs {mirror / 2**30:,.1f} GiB of "
-                          f"{device.type} memory beside the model's {need / 2**30:,.1f} GiB, more than its "
-                          f"{have / 2**30:,.1f} GiB; lower train.buffer_capacity, or set train.device_buffer: false")
-    ram = _memory_bytes(torch.device("cpu"))
-    model_ram = need if device.type == "cpu" else 0
-    if not memmap and buffer + model_ram > ram:
-        raise ConfigError(f"train.buffer_capacity: the replay buffer needs {buffer / 2**30:,.1f} GiB of memory, "
-                          f"more than the {ram / 2**30:,.1f} GiB this machine has beside the model; lower it, or "
-                          "lower train.buffer_memmap_mb to keep it in a memory-mapped file on disk")
-    if device.type == "cpu" and (0 if memmap else buffer) + model_ram + mirror * copies > ram:
-        raise ConfigError(f"train.device_buffer: its copy of the replay buffer needs {mirror * copies / 2**30:,.1f} "
-                          f"GiB of memory beside the buffer and the model, more than the {ram / 2**30:,.1f} GiB this "
-                          "machine has; on the CPU the copy only costs memory: set it to false")
-    # a full disk fails here, in one line, before TensorBoard's writer thread would fail with a long traceback.
-    # One checkpoint: weights, two Adam moments and targets (4 copies), the reward sample, the buffer if saved.
-    ckpt = params * 16 + tc.reward_buffer_size * (obs_dim + nq + nv) * 4 + (buffer if tc.save_buffer else 0)
-    if ckpt + (buffer if memmap else 0) > free:
-        raise CheckpointError(f"{folder}: {free / 2**20:,.0f} MiB free on disk, but one checkpoint of this run needs "
-                              f"about {ckpt / 2**20:,.0f} MiB" + (f" beside the {buffer / 2**20:,.0f} MiB "
-                              "memory-mapped replay buffer" if memmap else "") + "; free space or choose another --out")
-    return memmap
-
-
-def phase_steps(tc: TrainConfig, world_size: int) -> int:
-    """Vector-env steps each rank takes per rollout phase: rollout_steps global env steps shared by the ranks."""
-    return max(1, math.ceil(tc.rollout_steps / (tc.num_envs * world_size)))
-
-
-def check_world_size(cfg: Config, world_size: int) -> None:
-    """ConfigError unless `world_size` ranks run `cfg` at the update-to-data ratio of one process: a phase must
-    collect as many global env steps as one process collects (ranks x phase_steps x num_envs); an exact resume
-    (train.save_buffer) holds for one process only (the other ranks' replay shards are not saved)."""
-    if world_size <= 1:
-        return
-    tc = cfg.train
-    single = phase_steps(tc, 1)
-    if phase_steps(tc, world_size) * world_size != single:
-        fits = [w for w in range(1, single + 1) if phase_steps(tc, w) * w == single]
-        raise ConfigError(f"train.rollout_steps: {tc.rollout_steps} env steps per phase with train.num_envs: "
-                          f"{tc.num_envs} envs per rank do not split over {world_size} ranks without changing the "
-                          f"update-to-data ratio; world sizes that fit: {fits}")
-    if tc.save_buffer:
-        raise ConfigError(f"train.save_buffer: an exact resume needs one process, and {world_size} ranks were "
-                          "launched (only rank 0 writes checkpoints); set it to false")
-
-
 def config_json(cfg: Config) -> str:
     """The run config as canonical JSON (what the ranks of one run must agree on)."""
     return json.dumps(asdict(cfg), sort_keys=True, default=str)
 
 
-def _rescheduled(saved: float, every: int, env_steps: int) -> float:
-    """The next env step of a periodic job after a resume whose config may change its period: 0 turns it off, and
-    one switched on starts at the next multiple of its period; otherwise the saved schedule goes on."""
-    if not every:
-        return math.inf
-    return saved if math.isfinite(saved) else (env_steps // every + 1) * every
-
-
-def prunable_checkpoints(root: Path, keep_last: int, keep_every: int) -> list[Path]:
-    """Checkpoints that retention removes: all but the last `keep_last`, sparing those at multiples of
-    `keep_every` env steps (0: none spared)."""
-    steps = list_checkpoints(root)[:-keep_last]
-    return [p for p in steps if not (keep_every and int(p.name.split("_")[1]) % keep_every == 0)]
+def _check_fresh(cfg: Config) -> None:
+    """ConfigError for keys that continue a loaded model, in a run that starts from scratch."""
+    held = cfg.agent.holds_loaded_model() + (["train.keep_reward_sample"] if cfg.train.keep_reward_sample else [])
+    if held:
+        raise ConfigError(f"{held[0]}: holds a run near the model it continues, so it needs --init-from "
+                          "(a fresh run has no model to hold)")
+    if cfg.train.eval_at_start:
+        raise ConfigError("train.eval_at_start: evaluates the model a run continues, so it needs --init-from")
 
 
 def agree_on_bf16(chosen: bool, replicas: distributed.Replicas) -> bool:
     """`agent.bf16: auto` under torchrun: each rank timed its own matmul, and the ranks take bf16 only if all chose
     it, so that every replica computes its gradients in one precision."""
     return bool(replicas.sum(np.array([float(chosen)]))[0] == replicas.world_size) if replicas.enabled else chosen
-
-
-def _summary_writer(path: Path) -> Any:
-    """A TensorBoard writer, or None where tensorboard is not installed (metrics.csv is then the only log)."""
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:
-        warnings.warn("tensorboard is not installed: metrics go to metrics.csv only", RuntimeWarning, stacklevel=2)
-        return None
-    return SummaryWriter(str(path))
-
-
-def _episode_counter(env: Any) -> np.ndarray:
-    """The env's per-env step-in-episode counters (so a resumed run truncates episodes at the same steps)."""
-    counter = getattr(env, "steps", getattr(env, "_steps", None))
-    if not isinstance(counter, np.ndarray):
-        raise TypeError(f"{type(env).__name__}: no per-env episode step counter to save")
-    return counter
 
 
 def _num(x: float) -> float | None:

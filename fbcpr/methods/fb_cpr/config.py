@@ -78,3 +78,6 @@ class AgentConfig(MethodConfig):
         if run.env.npmp is not None:
             raise ConfigError("env.npmp: acting through an NPMP decoder needs a single-task method on a task reward "
                               "(algorithm td3 with agent.reward.imitation null): demonstrations have no latent actions")
+
+    def holds_loaded_model(self) -> list[str]:
+        return [f"agent.{key}" for key in ("freeze_backward", "anchor_actor") if getattr(self, key)]
