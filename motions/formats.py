@@ -7,7 +7,7 @@ from pathlib import Path
 
 from motions.limits import check_input_file
 
-FORMATS = ("amass", "deepmimic", "bvh")
+FORMATS = ("amass", "deepmimic", "bvh", "amc")
 
 
 class UnknownFormatError(ValueError):
@@ -15,7 +15,8 @@ class UnknownFormatError(ValueError):
 
 
 def detect_format(path: str | os.PathLike) -> str:
-    """'amass', 'deepmimic' or 'bvh', judged from the file's first bytes (not its name)."""
+    """'amass', 'deepmimic', 'bvh' or 'amc' (an Acclaim motion, read on its ASF skeleton), judged from the file's
+    first bytes (not its name). An ASF skeleton alone is no motion: UnknownFormatError says to import its AMCs."""
     path = Path(path)
     check_input_file(path, UnknownFormatError)
     try:
@@ -30,4 +31,10 @@ def detect_format(path: str | os.PathLike) -> str:
         return "bvh"
     if text.startswith(b"{"):
         return "deepmimic"
-    raise UnknownFormatError(f"{path}: not a supported motion file (expected AMASS .npz, DeepMimic JSON or BVH)")
+    if b":FULLY-SPECIFIED" in head or b":DEGREES" in head:
+        return "amc"
+    if b":bonedata" in head or b":version" in head:
+        raise UnknownFormatError(f"{path}: an ASF skeleton, not a motion: import its .amc motions (the skeleton is "
+                                 "found beside them, or named with --skeleton)")
+    raise UnknownFormatError(f"{path}: not a supported motion file (expected AMASS .npz, DeepMimic JSON, BVH or "
+                             "ASF/AMC)")

@@ -112,6 +112,7 @@ class RetargetReport:
     max_penetration: float = 0.0  # m, deepest foot point below the floor
     max_contact_gap: float = 0.0  # m, largest |foot height| over contact frames
     keypoint_error: float = 0.0  # m, mean distance between IK result and targets
+    foot_slide: float = 0.0  # m/s, mean horizontal speed of a foot over the frames it is in contact
     contacts: np.ndarray | None = None  # (T, 2) bool, left/right foot in contact (from the source)
 
     @property
@@ -272,6 +273,23 @@ def ground_shift(model: mujoco.MjModel, qpos: np.ndarray, contacts: np.ndarray) 
     return np.maximum(shift, -lowest)
 
 
+def foot_slide(model: mujoco.MjModel, qpos: np.ndarray, contacts: np.ndarray, fps: float) -> float:
+    """Mean horizontal speed (m/s) of each foot over the frames it is in contact: 0 for feet that stay planted,
+    and a clip whose feet skate on the floor scores high (a retargeting or source problem worth looking at)."""
+    if not contacts.any():
+        return 0.0
+    data = mujoco.MjData(model)
+    ids = foot_geom_ids(model)  # left ankle and toe, right ankle and toe
+    xy = np.empty((len(qpos), len(ids), 2))
+    for t, q in enumerate(qpos):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        xy[t] = data.geom_xpos[ids, :2]
+    feet = np.stack([xy[:, :2].mean(axis=1), xy[:, 2:].mean(axis=1)], axis=1)  # (T, 2 feet, xy)
+    speed = np.linalg.norm(np.gradient(feet, 1.0 / fps, axis=0), axis=-1)
+    return float(speed[contacts].mean())
+
+
 def floor_metrics(model: mujoco.MjModel, qpos: np.ndarray, contacts: np.ndarray) -> tuple[float, float]:
     """(deepest foot point below the floor, largest |foot height| over contact frames), in metres."""
     foot_low, _ = _foot_and_body_lows(model, qpos)
@@ -401,6 +419,6 @@ class Retargeter:
         report = RetargetReport(
             name=src.name, frames=n, seconds=n / self.fps, compute_seconds=time.perf_counter() - start,
             clipped=clipped, max_penetration=penetration, max_contact_gap=gap, keypoint_error=err / n,
-            contacts=contacts,
+            foot_slide=foot_slide(self.model, qpos, contacts, self.fps), contacts=contacts,
         )
         return qpos, report

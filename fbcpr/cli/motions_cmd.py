@@ -13,7 +13,8 @@ from rich.table import Table
 
 from fbcpr.cli.common import HelpGroup, cli_errors, console, err_console, progress
 
-motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH), inspect, render.", no_args_is_help=True,
+motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH, ASF/AMC), inspect, render.",
+                          no_args_is_help=True,
                           cls=HelpGroup)
 
 
@@ -82,14 +83,18 @@ def merge_summary(path: Path, clips: list[dict], failures: list[dict]) -> dict:
 @motions_app.command("import")
 @cli_errors
 def import_cmd(
-    sources: list[Path] = typer.Argument(..., help="Motion files or folders (AMASS .npz, DeepMimic JSON, BVH)."),
+    sources: list[Path] = typer.Argument(..., help="Motion files or folders (AMASS .npz, DeepMimic JSON, BVH, "
+                                         "ASF/AMC .amc with its .asf)."),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for the clip .npz files (created if missing)."),
     up_axis: str = typer.Option(None, "--up-axis", help="Override the source up axis: y or z (AMASS: z, BVH: y)."),
     loop_seconds: float = typer.Option(0.0, "--loop-seconds", help="Repeat cyclic clips until they last this long."),
     no_cache: bool = typer.Option(False, "--no-cache", help="Ignore the conversion cache (~/.cache/fbcpr)."),
-    joint_map: Path | None = typer.Option(None, "--joint-map", help="BVH: YAML mapping of keypoints to this "
-                                             "rig's joint names (l_hip, l_knee, l_ankle, l_toe, neck, head, "
-                                             "l_shoulder, l_elbow, l_wrist and r_ ones), for rigs not known here."),
+    joint_map: Path | None = typer.Option(None, "--joint-map", help="BVH or ASF/AMC: YAML mapping of keypoints to "
+                                             "this rig's joint (or bone) names (l_hip, l_knee, l_ankle, l_toe, neck, "
+                                             "head, l_shoulder, l_elbow, l_wrist and r_ ones), for rigs not known "
+                                             "here."),
+    skeleton: Path | None = typer.Option(None, "--skeleton", help="ASF/AMC: the ASF skeleton of the .amc motions "
+                                         "(default: <subject>.asf beside each, or the folder's only .asf)."),
 ) -> None:
     """Convert motion files to 30 Hz clips; a failing file is reported and skipped, and writes are atomic."""
     from motions.clip import save_clip
@@ -99,6 +104,8 @@ def import_cmd(
         raise typer.BadParameter("--up-axis must be y or z")
     names = read_joint_map(joint_map) if joint_map is not None else None
     files = _expand(sources)
+    skeletons = [p for p in files if p.suffix.lower() == ".asf"]  # read with their motions, not as motions
+    files = [p for p in files if p.suffix.lower() != ".asf"]
     if not files:
         raise ValueError("no input files found")
     out.mkdir(parents=True, exist_ok=True)
@@ -111,7 +118,7 @@ def import_cmd(
             bar.update(task, description=f"importing {path.name}")
             try:
                 clip, report = import_file(path, up_axis=up_axis, loop_seconds=loop_seconds, use_cache=not no_cache,
-                                           joint_map=names)
+                                           joint_map=names, skeleton=skeleton)
                 stem = clip.name
                 k = 1
                 while stem in used:  # two sources with one name in a single run keep both
@@ -123,7 +130,8 @@ def import_cmd(
                              "seconds": round(clip.seconds, 3), "clipped_joint_frames": report.clipped_total,
                              "clipped_joints": dict(sorted(report.clipped.items(), key=lambda kv: -kv[1])),
                              "max_foot_penetration_m": round(report.max_penetration, 4),
-                             "max_contact_gap_m": round(report.max_contact_gap, 4)})
+                             "max_contact_gap_m": round(report.max_contact_gap, 4),
+                             "foot_slide_m_s": round(report.foot_slide, 4)})
             except Exception as err:  # one bad file must not stop the others
                 failed.append({"file": str(path),
                                "reason": str(err).strip().splitlines()[0] if str(err) else type(err).__name__})
@@ -131,12 +139,14 @@ def import_cmd(
     seconds = sum(d["seconds"] for d in done)
     _write_json_atomic(merge_summary(out / "import_summary.json", done, failed), out / "import_summary.json")
     table = Table(title=f"Imported {len(done)} clip(s), {seconds:.1f} s of motion -> {out}")
-    for col in ("clip", "frames", "seconds", "clipped joint-frames", "penetration (m)"):
+    for col in ("clip", "frames", "seconds", "clipped joint-frames", "penetration (m)", "foot slide (m/s)"):
         table.add_column(col, justify="right" if col not in ("clip", "clipped joint-frames") else "left")
     for d in done:
         table.add_row(d["clip"], str(d["frames"]), f"{d['seconds']:.1f}", _clipped_text(d),
-                      f"{d['max_foot_penetration_m']:.3f}")
+                      f"{d['max_foot_penetration_m']:.3f}", f"{d.get('foot_slide_m_s', 0.0):.3f}")
     console.print(table)
+    if skeletons:
+        console.print(f"skeletons read with their motions, not imported: {', '.join(p.name for p in skeletons)}")
     for f in failed:
         err_console.print(f"[red]failed[/] {f['file']}: {f['reason']}", highlight=False)
     if failed:

@@ -1,6 +1,7 @@
 """Import motion files of any supported format into clips: format autodetection, a conversion cache, one entry point.
 
-Formats: AMASS/SMPL `.npz` (direct joint-angle mapping), DeepMimic JSON and BVH (keypoint IK retargeting).
+Formats: AMASS/SMPL `.npz` (direct joint-angle mapping), DeepMimic JSON, BVH and ASF/AMC (keypoint IK
+retargeting).
 Conversions are cached by file content hash (plus file name, options and converter version) under $FBCPR_CACHE_DIR or
 ~/.cache/fbcpr, so re-importing the same files is instant; delete that folder to force a fresh conversion.
 """
@@ -22,19 +23,25 @@ from motions.retarget import Retargeter, RetargetReport
 __all__ = ["FORMATS", "UnknownFormatError", "cache_dir", "detect_format", "import_file"]
 
 #: Bump when a converter's output changes, so cached conversions are not reused.
-CONVERTER_VERSION = "2"
+CONVERTER_VERSION = "3"
 
 
 def cache_dir() -> Path:
     return Path(os.environ.get("FBCPR_CACHE_DIR", Path.home() / ".cache" / "fbcpr")) / "motions"
 
 
-def _cache_key(path: Path, fmt: str, options: dict) -> str:
+def _file_digest(path: Path) -> str:
     h = hashlib.sha256()
-    h.update(f"{CONVERTER_VERSION}|{fmt}|{path.name}|{json.dumps(options, sort_keys=True)}|".encode())
     with open(path, "rb") as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
+    return h.hexdigest()
+
+
+def _cache_key(path: Path, fmt: str, options: dict) -> str:
+    h = hashlib.sha256()
+    h.update(f"{CONVERTER_VERSION}|{fmt}|{path.name}|{json.dumps(options, sort_keys=True)}|".encode())
+    h.update(_file_digest(path).encode())
     return h.hexdigest()[:32]
 
 
@@ -61,18 +68,27 @@ def _retargeter() -> Retargeter:
 
 
 def import_file(path: str | os.PathLike, up_axis: str | None = None, loop_seconds: float = 0.0,
-                use_cache: bool = True, joint_map: dict[str, str] | None = None) -> tuple[Clip, RetargetReport]:
+                use_cache: bool = True, joint_map: dict[str, str] | None = None,
+                skeleton: str | os.PathLike | None = None) -> tuple[Clip, RetargetReport]:
     """Convert one motion file to a 30 Hz clip, with a report (clipped joints, floor contact quality).
 
     up_axis overrides the format's default (AMASS "z", BVH "y"; DeepMimic is always y up).
     loop_seconds > 0 repeats cyclic clips (DeepMimic "wrap") with accumulated root offset until they last that long.
-    joint_map names BVH joints for keypoints (`motions.importers.bvh.NAMES`) of a rig whose names are unknown.
+    joint_map names BVH joints (or ASF bones) for keypoints (`motions.importers.bvh.NAMES`) of a rig whose names
+    are unknown. skeleton: the ASF of an AMC motion (default: the one beside it, `asfamc.find_skeleton`).
     """
     path = Path(path)
     fmt = detect_format(path)
     options: dict = {"up_axis": up_axis, "loop_seconds": loop_seconds}
     if joint_map:
         options["joint_map"] = joint_map
+    if fmt == "amc":
+        from motions.importers.asfamc import AsfAmcFormatError, find_skeleton
+
+        skeleton = Path(skeleton) if skeleton is not None else find_skeleton(path)
+        if not skeleton.is_file():
+            raise AsfAmcFormatError(f"{skeleton}: no such ASF skeleton file")
+        options["skeleton"] = _file_digest(skeleton)  # the motion's meaning changes with its skeleton
     key = _cache_key(path, fmt, options) if use_cache else None
     if key is not None:
         cached = cache_dir() / f"{key}.npz"
@@ -93,6 +109,10 @@ def import_file(path: str | os.PathLike, up_axis: str | None = None, loop_second
             from motions.importers.deepmimic import load_deepmimic
 
             src = load_deepmimic(path)
+        elif fmt == "amc":
+            from motions.importers.asfamc import load_amc
+
+            src = load_amc(path, skeleton, up_axis=up_axis or "y", joint_map=joint_map)
         else:
             from motions.importers.bvh import load_bvh
 

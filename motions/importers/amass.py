@@ -20,7 +20,7 @@ from humanoid_env.model import BODY_NAMES, JOINT_NAMES, joint_ranges, load_model
 from motions.kinematics import resample_qpos
 from motions.limits import MIN_FRAME_SECONDS, check_frame_times, max_clip_seconds
 from motions.npz import read_npz
-from motions.retarget import RetargetReport, floor_metrics, ground_shift
+from motions.retarget import RetargetReport, floor_metrics, foot_slide, ground_shift
 
 #: SMPL joint index for each of our non-root bodies, in BODY_NAMES[1:] order.
 SMPL_INDEX = {
@@ -136,5 +136,6 @@ def import_amass(path: str | Path, fps: float = 30.0, up_axis: str = "z") -> tup
     report = RetargetReport(
         name=path.stem, frames=qpos.shape[0], seconds=qpos.shape[0] / fps, compute_seconds=time.perf_counter() - start,
         clipped=clipped, max_penetration=penetration, max_contact_gap=gap, contacts=contacts,
+        foot_slide=foot_slide(model, qpos, contacts, fps),
     )
     return qpos, report, {"source": f"AMASS/SMPL {path.name}", "license": "see the AMASS license of the source dataset"}

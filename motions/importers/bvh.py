@@ -18,24 +18,29 @@ from scipy.spatial.transform import Rotation
 from motions.limits import MAX_BVH_DEPTH, check_frame_times, read_text
 from motions.retarget import SourceMotion
 
-#: keypoint -> candidate joint names (lower case, tried in order).
+#: keypoint -> candidate joint names (lower case, tried in order): CMU's, common alternatives such as MakeHuman's,
+#: and Character Creator's (`CC_Base_L_Thigh`, ...).
 NAMES = {
-    "l_hip": ("leftupleg", "lefthip", "lhip", "l_hip", "leftthigh", "lthigh"),
-    "l_knee": ("leftleg", "leftknee", "lknee", "l_knee", "leftshin", "lshin", "leftlowerleg"),
-    "l_ankle": ("leftfoot", "leftankle", "lankle", "l_ankle", "lfoot"),
-    "l_toe": ("lefttoebase", "lefttoe", "ltoe", "l_toe", "lefttoes", "toe1-1.l", "toes.l", "toe.l"),
-    "neck": ("neck", "neck1", "lowerneck"),
-    "head": ("head",),
-    "l_shoulder": ("leftarm", "leftupperarm", "lshldr", "leftshoulder", "l_shoulder"),
-    "l_elbow": ("leftforearm", "leftelbow", "leftlowerarm", "lforearm", "l_elbow"),
-    "l_wrist": ("lefthand", "leftwrist", "lhand", "l_wrist"),
+    "l_hip": ("leftupleg", "lefthip", "lhip", "l_hip", "leftthigh", "lthigh", "cc_base_l_thigh"),
+    "l_knee": ("leftleg", "leftknee", "lknee", "l_knee", "leftshin", "lshin", "leftlowerleg", "cc_base_l_calf"),
+    "l_ankle": ("leftfoot", "leftankle", "lankle", "l_ankle", "lfoot", "cc_base_l_foot"),
+    "l_toe": ("lefttoebase", "lefttoe", "ltoe", "l_toe", "lefttoes", "toe1-1.l", "toes.l", "toe.l",
+              "cc_base_l_toebase"),
+    "neck": ("neck", "neck1", "lowerneck", "cc_base_necktwist01"),
+    "head": ("head", "cc_base_head"),
+    "l_shoulder": ("leftarm", "leftupperarm", "lshldr", "leftshoulder", "l_shoulder", "cc_base_l_upperarm"),
+    "l_elbow": ("leftforearm", "leftelbow", "leftlowerarm", "lforearm", "l_elbow", "cc_base_l_forearm"),
+    "l_wrist": ("lefthand", "leftwrist", "lhand", "l_wrist", "cc_base_l_hand"),
 }
 
 
 def _right(name: str) -> str:
-    """The right-side twin of a left joint name: leftfoot, l_foot, lfoot (CMU, Poser) and toe.l (MakeHuman)."""
+    """The right-side twin of a left joint name: leftfoot, l_foot, lfoot (CMU, Poser), toe.l (MakeHuman) and
+    cc_base_l_foot (Character Creator)."""
     if name.endswith(".l"):
         return name[:-2] + ".r"
+    if "_l_" in name:
+        return name.replace("_l_", "_r_")
     if "left" in name:
         return name.replace("left", "right")
     return "r" + name[1:]
@@ -214,5 +219,22 @@ def load_bvh(path: str | Path, up_axis: str = "y", joint_map: dict[str, str] | N
                                  f"map, e.g. `fbcpr motions import --joint-map map.yaml` with `{key}: JointName`)")
         idx[key] = found
     positions = {k: world[:, i] for k, i in idx.items()}
-    return SourceMotion(name=path.stem, positions=positions, times=np.arange(values.shape[0]) * frame_time,
-                        source=f"BVH {path.name}", license="see the license of the source dataset")
+    skip = leading_rest_frames(positions)
+    positions = {k: v[skip:] for k, v in positions.items()}
+    note = f" (first {skip} frame(s), a rest pose apart from the motion, left out)" if skip else ""
+    return SourceMotion(name=path.stem, positions=positions, times=np.arange(values.shape[0] - skip) * frame_time,
+                        source=f"BVH {path.name}{note}", license="see the license of the source dataset")
+
+
+def leading_rest_frames(positions: dict[str, np.ndarray]) -> int:
+    """How many first frames stand apart from the motion: some exporters put the rig's rest pose (a T-pose at the
+    origin) before the take, and the pelvis then jumps more than half a leg length to the next frame, which no
+    body does in one frame. Only leading frames: a jump inside the take stays an error of the clip."""
+    pelvis = (positions["l_hip"] + positions["r_hip"]) / 2
+    leg = np.linalg.norm(positions["l_hip"] - positions["l_knee"], axis=1) + \
+        np.linalg.norm(positions["l_knee"] - positions["l_ankle"], axis=1)
+    jumps = np.linalg.norm(np.diff(pelvis, axis=0), axis=1) > 0.5 * np.median(leg)
+    skip = 0
+    while skip < len(jumps) - 2 and jumps[skip]:
+        skip += 1
+    return skip
