@@ -588,3 +588,81 @@ def test_resume_with_other_num_envs_names_the_key(tmp_path):
     cfg = dataclasses.replace(tr.cfg, train=dataclasses.replace(tr.cfg.train, num_envs=8))
     with pytest.raises(ConfigError, match=r"^train.num_envs: 8, but .* was saved with 4 envs"):
         Trainer(cfg, tmp_path / "run", resume=True, progress=False)
+
+
+# --- issue 58: outputs apart from their sources, real inputs, exact resume, named fields ----------------------------
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _trained_checkpoint(tmp_path: Path) -> Path:
+    """A checkpoint with a trainer state, as a run writes it: what an export over it would destroy."""
+    import torch
+
+    from fbcpr.core.checkpoint import save_checkpoint
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
+
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3}})
+    path = save_checkpoint(tmp_path / "run" / "checkpoints" / "step_0000000010", FBCPRModel(cfg.model), cfg,
+                           trainer_state=({"x": torch.zeros(3)}, {"env_steps": 10}))
+    (path.parent / "latest").write_text(path.name)
+    return path
+
+
+@pytest.mark.parametrize("out", ["same", "inside", "containing", "run", "link"])
+def test_export_refuses_an_output_that_is_inside_or_contains_its_source(tmp_path, out):
+    from fbcpr.cli.app import app
+
+    ckpt = _trained_checkpoint(tmp_path)
+    run = tmp_path / "run"
+    (tmp_path / "link").symlink_to(ckpt)
+    target = {"same": ckpt, "inside": ckpt / "export", "containing": ckpt.parent, "run": run,
+              "link": tmp_path / "link"}[out]
+    before = _files(run)
+    res = CliRunner().invoke(app, ["export", str(run if out == "run" else ckpt), str(target)])
+    assert res.exit_code == 1, res.output
+    assert "OUT: " in res.output and "the checkpoint to export" in res.output
+    assert _files(run) == before  # nothing written, nothing replaced: trainer_state.safetensors is still there
+
+
+def test_export_refuses_to_replace_a_file_or_a_folder_that_is_no_checkpoint(tmp_path):
+    from fbcpr.cli.app import app
+    from fbcpr.core.checkpoint import CheckpointError
+
+    ckpt = _trained_checkpoint(tmp_path)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("keep me")
+    res = CliRunner().invoke(app, ["export", str(ckpt), str(notes)])
+    assert res.exit_code == 1 and "is an existing file, not a folder" in res.output
+    assert notes.read_text() == "keep me"
+    folder = tmp_path / "documents"
+    folder.mkdir()
+    (folder / "thesis.tex").write_text("years of work")
+    bfm = _bfm()
+    with pytest.raises(CheckpointError, match="documents: a folder that holds files but no checkpoint"):
+        bfm.save(folder)
+    with pytest.raises(CheckpointError, match="notes.txt: an existing file, not a checkpoint folder"):
+        bfm.save(notes)
+    assert (folder / "thesis.tex").read_text() == "years of work" and notes.read_text() == "keep me"
+    assert (bfm.save(tmp_path / "empty") / "manifest.json").is_file()  # a new or empty folder, or a checkpoint:
+    assert (bfm.save(tmp_path / "empty") / "manifest.json").is_file()  # written (again) as before
+
+
+def test_every_command_that_writes_a_folder_keeps_it_apart_from_its_inputs(tmp_path):
+    from fbcpr.cli.app import app
+
+    ckpt = _trained_checkpoint(tmp_path)
+    before = _files(tmp_path / "run")
+    runner = CliRunner()
+    res = runner.invoke(app, ["train", "toy", "--out", str(ckpt / "run"), "--init-from", str(ckpt)])
+    assert res.exit_code == 1 and "--out: " in res.output and "lies inside --init-from" in res.output, res.output
+    res = runner.invoke(app, ["npmp", "distill", str(ckpt), "--motions", str(tmp_path), "--out", str(tmp_path / "n")])
+    assert res.exit_code == 1 and "--out: " in res.output and "lies inside --motions" in res.output, res.output
+    assert _files(tmp_path / "run") == before and not (tmp_path / "n").exists()
+    source = _amass(tmp_path / "walk.npz", 30.0)
+    raw = source.read_bytes()
+    res = runner.invoke(app, ["motions", "import", str(source), "--out", str(tmp_path)])
+    assert res.exit_code == 1 and "--out: " in res.output and "contains the source" in res.output, res.output
+    assert source.read_bytes() == raw  # the clip walk.npz would have replaced the AMASS file walk.npz

@@ -221,6 +221,7 @@ def save_checkpoint(
     without their observations (rebuilt on load), for checkpoints that ship. `reward_prompts` is the (tensors,
     metadata) pair of `fbcpr.inference.reward_prompts.RewardPrompts.to_tensors`."""
     path = Path(path)
+    check_replaceable(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
@@ -291,8 +292,27 @@ def _backup_name(path: Path) -> Path:
     return path.parent / f".{path.name}.previous"
 
 
+def check_replaceable(path: Path) -> None:
+    """CheckpointError unless a checkpoint may be written at `path`: nothing is there, an empty folder, or a
+    checkpoint (a folder with its manifest). A file, or a folder of anything else, is never replaced by one."""
+    if not os.path.lexists(path):
+        return
+    if not path.is_dir():
+        raise CheckpointError(f"{path}: an existing file, not a checkpoint folder; a checkpoint would replace it "
+                              "(choose another path)")
+    try:
+        holds = next(os.scandir(path), None) is not None
+    except OSError as e:
+        raise CheckpointError(f"{path}: cannot read the folder to be replaced ({e.strerror})") from None
+    if holds and not (path / MANIFEST_FILE).is_file():
+        raise CheckpointError(f"{path}: a folder that holds files but no checkpoint (no {MANIFEST_FILE}); a checkpoint "
+                              "would replace all of it (choose another path)")
+
+
 def swap_into_place(tmp: Path, path: Path) -> None:
-    """tmp -> path; an existing checkpoint is kept as a backup until the new one is in place."""
+    """tmp -> path; an existing checkpoint is kept as a backup until the new one is in place (`check_replaceable`:
+    only a checkpoint or an empty folder is replaced)."""
+    check_replaceable(path)
     backup = _backup_name(path)
     if path.exists():
         if backup.exists():

@@ -19,6 +19,7 @@ from fbcpr.core.checkpoint import (
     MODEL_FILE,
     TRAINER_FILE,
     CheckpointError,
+    check_replaceable,
     load_state_strict,
     read_manifest,
     read_tensors,
@@ -58,6 +59,7 @@ def save_npmp(path: str | Path, model: NPMPModel, info: dict[str, Any],
               trainer_state: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None) -> Path:
     """Write a checkpoint directory atomically (the previous one at `path` stays readable until the swap)."""
     path = Path(path)
+    check_replaceable(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
