@@ -666,3 +666,30 @@ def test_every_command_that_writes_a_folder_keeps_it_apart_from_its_inputs(tmp_p
     res = runner.invoke(app, ["motions", "import", str(source), "--out", str(tmp_path)])
     assert res.exit_code == 1 and "--out: " in res.output and "contains the source" in res.output, res.output
     assert source.read_bytes() == raw  # the clip walk.npz would have replaced the AMASS file walk.npz
+
+
+@pytest.mark.parametrize("make", [
+    lambda: np.ones(6, dtype=np.complex64) * 1j,
+    lambda: __import__("torch").ones(6, dtype=__import__("torch").complex64),
+    lambda: np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0 + 2j]),
+])
+def test_act_refuses_complex_observations(make):
+    from fbcpr.core.errors import InputError
+
+    bfm = _bfm()
+    with pytest.raises(InputError, match=r"^obs: must be real numbers, got complex"):
+        bfm.act(make(), np.ones(bfm.z_dim, dtype=np.float32))
+    with pytest.raises(InputError, match=r"^z: must be real numbers"):
+        bfm.act(np.ones(6, dtype=np.float32), np.ones(bfm.z_dim, dtype=np.complex128))
+
+
+def test_act_says_a_z_of_none_is_not_numbers():
+    from fbcpr.core.errors import InputError
+
+    bfm = _bfm()
+    with pytest.raises(InputError, match=r"^z: must be numbers, found NoneType values \(None\)"):
+        bfm.act(np.ones(6, dtype=np.float32), [None] * bfm.z_dim)
+    with pytest.raises(InputError, match=r"^obs: must be numbers, got an array of <U1"):
+        bfm.act(np.array(list("123456")), np.ones(bfm.z_dim))
+    mixed = np.array([1, 2.5, True, np.float32(3), 4, 5], dtype=object)  # numbers in an object array still work
+    assert bfm.act(mixed, np.ones(bfm.z_dim)).shape == (3,)
