@@ -695,6 +695,27 @@ def test_act_says_a_z_of_none_is_not_numbers():
     assert bfm.act(mixed, np.ones(bfm.z_dim)).shape == (3,)
 
 
+@pytest.mark.parametrize("edit, message", [
+    (lambda m: m["model"].update(z_dim=m["model"]["z_dim"] + 1), r"manifest.json: model.z_dim: \d+ disagrees"),
+    (lambda m: m["model"].update(obs_dim=True), "manifest.json: model.obs_dim: True disagrees"),
+    (lambda m: m.update(model=[1]), "manifest.json: model: must map"),
+    (lambda m: m["tensors"]["model.safetensors"].update({"obs_normalizer.mean": [7]}),
+     r"manifest.json: tensors.model.safetensors: disagrees with model.safetensors \(at 'obs_normalizer.mean'"),
+    (lambda m: m["tensors"].pop("model.safetensors"), "manifest.json: tensors.model.safetensors: missing"),
+    (lambda m: m.update(tensors="x"), "manifest.json: tensors: must map"),
+])
+def test_manifest_sizes_and_shapes_are_checked(tmp_path, edit, message):
+    from fbcpr.core.checkpoint import CheckpointError, load_checkpoint
+
+    path = _checkpoint(tmp_path)
+    manifest = json.loads((path / "manifest.json").read_text())
+    assert "obs_normalizer.mean" in manifest["tensors"]["model.safetensors"]
+    edit(manifest)
+    (path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(CheckpointError, match=message):
+        load_checkpoint(path)
+
+
 def test_env_state_restores_every_bit_of_the_simulation():
     from humanoid_env.vector import VectorHumanoidEnv
 

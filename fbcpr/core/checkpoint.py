@@ -149,7 +149,42 @@ def read_tensors(root: Path, name: str, manifest: dict[str, Any]) -> tuple[dict[
             meta = json.loads((f.metadata() or {}).get(_META_KEY, "{}"))
     except Exception as e:  # safetensors raises several types on malformed files
         raise CheckpointError(f"{path}: unreadable safetensors file ({e})") from None
+    check_recorded_shapes(root, name, manifest, tensors)
     return tensors, meta
+
+
+def check_recorded_shapes(root: Path, name: str, manifest: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
+    """CheckpointError naming manifest.json and `tensors.<name>` unless the shapes the manifest records for file
+    `name` are those of its tensors (a manifest without `tensors`, as NPMP checkpoints write it, records none)."""
+    if "tensors" not in manifest:
+        return
+    recorded, where = manifest["tensors"], f"{root / MANIFEST_FILE}: tensors"
+    if not isinstance(recorded, dict):
+        raise CheckpointError(f"{where}: must map file names to {{tensor: shape}}, got {type(recorded).__name__}")
+    actual = {k: list(v.shape) for k, v in tensors.items()}
+    if name not in recorded:
+        raise CheckpointError(f"{where}.{name}: missing (the shapes of every safetensors file are recorded)")
+    if recorded[name] != actual:
+        entry = recorded[name] if isinstance(recorded[name], dict) else {}
+        diff = sorted(set(entry) ^ set(actual)) or sorted(k for k in actual if entry.get(k) != actual[k])
+        key = diff[0] if diff else "?"
+        raise CheckpointError(f"{where}.{name}: disagrees with {name} (at {key!r}: recorded "
+                              f"{entry.get(key, 'nothing')}, the file holds {actual.get(key, 'nothing')})")
+
+
+def check_recorded_sizes(path: Path, manifest: dict[str, Any], sizes: dict[str, int]) -> None:
+    """CheckpointError naming manifest.json and `model.<key>` unless the model sizes the manifest records are those
+    of the model built from the checkpoint (`sizes`); a manifest without `model` records none."""
+    if "model" not in manifest:
+        return
+    recorded, where = manifest["model"], f"{path / MANIFEST_FILE}: model"
+    if not isinstance(recorded, dict):
+        raise CheckpointError(f"{where}: must map obs_dim, action_dim and z_dim to sizes, "
+                              f"got {type(recorded).__name__}")
+    for key in sorted(set(recorded) | set(sizes)):
+        if recorded.get(key) != sizes.get(key) or isinstance(recorded.get(key), bool):
+            raise CheckpointError(f"{where}.{key}: {recorded.get(key, 'missing')!r} disagrees with the model its "
+                                  f"files hold ({sizes.get(key, 'no such size')})")
 
 
 def read_trainer_meta(path: str | Path) -> dict[str, Any]:
@@ -424,6 +459,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
         raise CheckpointError(f"{path / CONFIG_FILE}: {e}") from None
     tensors, _ = read_tensors(path, MODEL_FILE, manifest)
     load_state_strict(model, tensors, str(path / MODEL_FILE))
+    check_recorded_sizes(path, manifest, _model_sizes(model))
     model.to(device)
     model.eval()
     return Checkpoint(path=path, model=model, config=config, manifest=manifest)

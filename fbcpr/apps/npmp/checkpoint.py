@@ -19,6 +19,7 @@ from fbcpr.core.checkpoint import (
     MODEL_FILE,
     TRAINER_FILE,
     CheckpointError,
+    check_recorded_sizes,
     check_replaceable,
     load_state_strict,
     read_manifest,
@@ -92,4 +93,6 @@ def load_npmp(path: str | Path, device: str | torch.device = "cpu") -> NPMPCheck
     model = NPMPModel(cfg, *dims)
     tensors, _ = read_tensors(path, MODEL_FILE, manifest)
     load_state_strict(model, tensors, str(path / MODEL_FILE))
+    check_recorded_sizes(path, manifest, {"obs_dim": model.obs_dim, "action_dim": model.action_dim,
+                                          "z_dim": model.z_dim})
     return NPMPCheckpoint(path=path, model=model.to(device).eval(), info=info, manifest=manifest)
