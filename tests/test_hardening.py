@@ -106,8 +106,8 @@ def _amass(path: Path, fps: float, n: int = 40) -> Path:
 
 
 @pytest.mark.parametrize("fps, message", [
-    (1e-6, "outside"), (1e9, "outside"), (0.0, "must be finite"), (-30.0, "outside"), (np.nan, "must be finite"),
-    (np.inf, "outside"),
+    (1e-6, "outside"), (1e9, "outside"), (0.0, "must be a positive, finite number"), (-30.0, "outside"),
+    (np.nan, "must be a positive, finite number"), (np.inf, "outside"),
 ])
 def test_amass_frame_rates_are_bounded(tmp_path, fps, message):
     path = _amass(tmp_path / "a.npz", fps)
@@ -714,6 +714,26 @@ def test_manifest_sizes_and_shapes_are_checked(tmp_path, edit, message):
     (path / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(CheckpointError, match=message):
         load_checkpoint(path)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (("CHANNELS 6", "CHANNELS 2.7"), r"walk.bvh:2: CHANNELS of joint Hips: expected a count .*, got 2.7$"),
+    (("CHANNELS 6", "CHANNELS -1"), r"walk.bvh:2: CHANNELS of joint Hips: expected a count .*, got -1$"),
+    (("Frames: 3", "Frames: -5"), r"walk.bvh:6: Frames: expected a count .*, got -5$"),
+    (("Frames: 3", "Frames: 2.5"), r"walk.bvh:6: Frames: expected a count .*, got 2.5$"),
+])
+def test_bvh_counts_name_the_field_and_line(edit, message):
+    text = _bvh("0.0333", "3")
+    assert edit[0] in text
+    with pytest.raises(BvhFormatError, match=message):
+        parse_bvh(text.replace(edit[0], edit[1]), "walk.bvh")
+
+
+@pytest.mark.parametrize("fps", [0.0, np.nan, -30.0, np.inf, 1e-6])
+def test_amass_frame_rate_errors_name_mocap_framerate(tmp_path, fps):
+    path = _amass(tmp_path / "a.npz", fps)
+    with pytest.raises(AmassFormatError, match=f"a.npz: mocap_framerate {fps:g}|a.npz: mocap_framerate must be"):
+        read_amass(path)
 
 
 def test_env_state_restores_every_bit_of_the_simulation():
