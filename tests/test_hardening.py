@@ -736,6 +736,19 @@ def test_amass_frame_rate_errors_name_mocap_framerate(tmp_path, fps):
         read_amass(path)
 
 
+def test_a_latest_symlink_loop_is_named(tmp_path):
+    from fbcpr.core.checkpoint import CheckpointError
+    from fbcpr.inference.bfm import BFM
+    from fbcpr.train.trainer import checkpoint_env_steps
+
+    path = _checkpoint(tmp_path)
+    (path.parent / "latest").symlink_to("latest")
+    for load in (lambda: BFM.load(tmp_path / "run"), lambda: BFM.load(path.parent / "latest"),
+                 lambda: checkpoint_env_steps(tmp_path / "run")):
+        with pytest.raises(CheckpointError, match=r"checkpoints/latest: a symbolic link loop"):
+            load()
+
+
 def test_env_state_restores_every_bit_of_the_simulation():
     from humanoid_env.vector import VectorHumanoidEnv
 

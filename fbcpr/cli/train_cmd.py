@@ -1,6 +1,7 @@
 """`fbcpr train CONFIG.yaml`: online FB-CPR pre-training (fresh or resumed) into a run directory."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import typer
@@ -50,9 +51,10 @@ def train_command(
     if resume and init_from is not None:
         raise ValueError("--init-from starts a new run; --resume continues one: give only one of them")
     check_output_folder(run_dir, "--out", checkpoint_sources("--init-from", init_from))
-    if resume and not (run_dir / "checkpoints" / "latest").exists():
+    latest = run_dir / "checkpoints" / "latest"
+    if resume and not os.path.lexists(latest):  # a broken link is read below, which names what is wrong
         raise FileNotFoundError(f"--resume: no checkpoint to resume in {run_dir}")
-    if not resume and (run_dir / "checkpoints" / "latest").exists():
+    if not resume and os.path.lexists(latest):
         raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
     if resume:
         done = checkpoint_env_steps(run_dir)

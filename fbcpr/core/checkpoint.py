@@ -19,6 +19,7 @@ config.yaml and the manifest and picks the model class on load; a checkpoint tha
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -378,8 +379,15 @@ def pointed_checkpoint(root: Path, pointer: str = "latest") -> Path:
     try:
         name = file.read_text().strip()
     except FileNotFoundError:
+        if file.is_symlink():
+            raise CheckpointError(f"{file}: a symbolic link to {os.readlink(file)}, which does not exist") from None
         raise CheckpointError(f"{file}: missing (no checkpoint to resume)") from None
-    except (OSError, UnicodeDecodeError) as e:
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise CheckpointError(f"{file}: a symbolic link loop (it leads back to itself); it must be a file naming "
+                                  "a checkpoint folder beside it") from None
+        raise CheckpointError(f"{file}: unreadable pointer ({e})") from None
+    except UnicodeDecodeError as e:
         raise CheckpointError(f"{file}: unreadable pointer ({e})") from None
     if not name or name in (".", "..", *POINTERS) or "/" in name or os.sep in name:
         raise CheckpointError(f"{file}: must name a checkpoint folder beside it (e.g. step_0000100000), got {name!r}")

@@ -9,6 +9,7 @@ BFM also is an evaluation Agent (`act`, `z_dim`, `reward_z`, `goal_z`, `track_z`
 from __future__ import annotations
 
 import numbers
+import os
 import re
 import tempfile
 from pathlib import Path
@@ -394,6 +395,10 @@ def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: 
                               f"({e.strerror})") from None
     if str(src) == PRETRAINED_NAME and not exists:
         return pretrained_dir()
+    if not exists and path.is_symlink():  # a dangling link or a loop: say so rather than "no such directory"
+        if path.name in POINTERS:
+            return pointed_checkpoint(path.parent, path.name)
+        raise CheckpointError(f"{path}: a symbolic link that leads nowhere (to a missing path, or in a loop)")
     if exists:
         if path.is_file() and path.name in POINTERS:  # RUN/checkpoints/latest or .../best: the folder it names
             return pointed_checkpoint(path.parent, path.name)
@@ -423,7 +428,7 @@ def _latest_in_run(path: Path) -> Path:
     if (path / MANIFEST_FILE).exists():
         return path
     for root in (path / "checkpoints", path):
-        if (root / "latest").exists():
+        if os.path.lexists(root / "latest"):  # a symbolic link loop included: reading it says so
             return latest_checkpoint(root)
     return path
 
