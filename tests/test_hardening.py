@@ -749,6 +749,33 @@ def test_a_latest_symlink_loop_is_named(tmp_path):
             load()
 
 
+@pytest.mark.parametrize("typed, message", [
+    ("jump-2*", r"malformed reward expression .*: 'jump-2\*'"),
+    ("+jump-2", r"malformed reward expression .*: '\+jump-2'"),
+    ("jump-2*jumpp-2", r"^in 'jump-2\*jumpp-2': unknown reward task 'jumpp-2'"),
+])
+def test_reward_expressions_echo_what_was_typed(typed, message):
+    from fbcpr.core.errors import PromptError
+    from fbcpr.inference.prompt import reward_fn
+
+    with pytest.raises(PromptError, match=message):
+        reward_fn(typed)
+
+
+def test_stored_reward_prompts_without_metadata_say_so(tmp_path):
+    import torch
+
+    from fbcpr.core.checkpoint import CheckpointError, save_checkpoint
+    from fbcpr.inference.bfm import BFM
+
+    bfm = _bfm()
+    path = save_checkpoint(tmp_path / "c", bfm.model, bfm.config,
+                           reward_prompts=({"jump-2": torch.ones(bfm.z_dim)}, {}))
+    with pytest.raises(CheckpointError, match=r"reward_prompts.safetensors: its metadata is missing \(method, "
+                                              r"temperature, digest, states\)"):
+        BFM.load(path)
+
+
 def test_env_state_restores_every_bit_of_the_simulation():
     from humanoid_env.vector import VectorHumanoidEnv
 
