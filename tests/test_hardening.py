@@ -776,6 +776,24 @@ def test_stored_reward_prompts_without_metadata_say_so(tmp_path):
         BFM.load(path)
 
 
+def test_a_world_size_that_does_not_fit_fails_before_the_process_group_starts(tmp_path, monkeypatch):
+    import fbcpr.train.trainer as trainer_mod
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.core.errors import ConfigError
+
+    def started(*args, **kwargs):
+        raise AssertionError("the process group was started")
+
+    monkeypatch.setattr(trainer_mod.distributed, "setup", started)
+    monkeypatch.setenv("WORLD_SIZE", "3")
+    monkeypatch.setenv("RANK", "1")
+    cfg = config_from_dict({"model": {"preset": "tiny"}, "env": {"name": "toy"},
+                            "train": {"num_envs": 4, "rollout_steps": 40}})
+    with pytest.raises(ConfigError, match=r"^train.rollout_steps: .* do not split over 3 ranks"):
+        trainer_mod.Trainer(cfg, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+
+
 def test_env_state_restores_every_bit_of_the_simulation():
     from humanoid_env.vector import VectorHumanoidEnv
 

@@ -103,7 +103,9 @@ class Trainer:
         tc = cfg.train
         if tc.torch_threads:
             torch.set_num_threads(tc.torch_threads)
-        # device and env fail before the run directory exists
+        # device and env fail before the run directory exists; a world size that does not fit fails before the
+        # process group starts, so every rank exits at once with the same one-line error
+        check_world_size(cfg, distributed.launched_world_size())
         self.replicas, self.device = distributed.setup(resolve_device(tc.device), tc.dist_timeout_s, tc.dist_backend)
         r = self.replicas
         self.progress_enabled = progress and r.is_main
