@@ -14,7 +14,8 @@ from fbcpr.cli.common import checkpoint_sources, cli_errors, console
 @cli_errors
 def export_command(
     checkpoint: str = typer.Argument(..., help="Checkpoint dir, run dir, 'pretrained' or a Hugging Face repo id."),
-    out: Path = typer.Argument(..., help="Folder to write the inference checkpoint into (replaced atomically)."),
+    out: Path = typer.Argument(..., help="Folder to write the inference checkpoint into (replaced atomically); "
+                                         "never CHECKPOINT itself, a folder inside or around it, or a file."),
     reward_samples: int = typer.Option(20_000, "--reward-samples", min=1,
                                        help="States kept for reward prompts (a seeded subsample of the buffer)."),
     half: bool = typer.Option(True, "--half/--full", help="Store the reward states as float16 (half the size)."),
