@@ -102,6 +102,40 @@ class VectorHumanoidEnv(VectorEnv):
         """The steps each env's episode has run (a resumed run truncates its episodes where they would have)."""
         self._steps[:] = steps
 
+    def save_state(self) -> dict[str, np.ndarray]:
+        """Everything the next steps depend on, as copies: each simulation's whole MuJoCo integration state (a
+        `mujoco.batch` state row: time, qpos, qvel, the constraint solver's warm start, controls, ... as
+        mj_getState gives it), its warning counters, the last observation, the steps into each episode and the
+        fallen clocks. `load_state` puts it back, after which the envs step exactly as these would have: qpos and
+        qvel alone would lose the solver's warm start, and with it the last bits of the next states."""
+        c = self._clock
+        return {"physics": self.batch.state.copy(), "warnings": np.array(self.batch.warning), "obs": self._obs.copy(),
+                "steps": self._steps.copy(), "fallen": c.fallen.copy(), "up": c.up.copy(), "armed": c.armed.copy()}
+
+    def load_state(self, state: dict[str, np.ndarray]) -> np.ndarray:
+        """Restore what `save_state` gave (of a batch of the same size and MuJoCo build); returns the observation.
+        InvalidStateError naming the entry when one is missing, of another shape, or not finite."""
+        b, n = self.batch, self.num_envs
+        shapes = {"physics": b.state.shape, "warnings": b.warning.shape, "obs": self._obs.shape, "steps": (n,),
+                  "fallen": (n,), "up": (n,), "armed": (n,)}
+        for key, shape in shapes.items():
+            if key not in state:
+                raise InvalidStateError(f"env state: missing {key!r}")
+            if tuple(np.shape(state[key])) != tuple(shape):
+                raise InvalidStateError(f"env state: {key!r} has shape {tuple(np.shape(state[key]))}, this env's is "
+                                        f"{tuple(shape)} (another num_envs or another MuJoCo build)")
+        if not (np.isfinite(state["physics"]).all() and np.isfinite(state["obs"]).all()):
+            raise InvalidStateError("env state: 'physics' or 'obs' is not finite")
+        b.state[:] = state["physics"]
+        b.warning[:] = state["warnings"]
+        b.forward(stage=_VEL)  # derived fields at the restored state (the state rows themselves are left as they are)
+        self._obs = np.array(state["obs"], dtype=np.float32)
+        self._good_qpos, self._good_qvel = self._qpos.copy(), self._qvel.copy()
+        self._steps[:] = state["steps"]
+        self._clock.fallen[:], self._clock.up[:] = state["fallen"], state["up"]
+        self._clock.armed[:] = state["armed"]
+        return self._obs.copy()
+
     @property
     def reset_fallen_after(self) -> int:
         return self._clock.after

@@ -106,8 +106,8 @@ def _amass(path: Path, fps: float, n: int = 40) -> Path:
 
 
 @pytest.mark.parametrize("fps, message", [
-    (1e-6, "outside"), (1e9, "outside"), (0.0, "must be finite"), (-30.0, "outside"), (np.nan, "must be finite"),
-    (np.inf, "outside"),
+    (1e-6, "outside"), (1e9, "outside"), (0.0, "must be a positive, finite number"), (-30.0, "outside"),
+    (np.nan, "must be a positive, finite number"), (np.inf, "outside"),
 ])
 def test_amass_frame_rates_are_bounded(tmp_path, fps, message):
     path = _amass(tmp_path / "a.npz", fps)
@@ -588,3 +588,251 @@ def test_resume_with_other_num_envs_names_the_key(tmp_path):
     cfg = dataclasses.replace(tr.cfg, train=dataclasses.replace(tr.cfg.train, num_envs=8))
     with pytest.raises(ConfigError, match=r"^train.num_envs: 8, but .* was saved with 4 envs"):
         Trainer(cfg, tmp_path / "run", resume=True, progress=False)
+
+
+# --- issue 58: outputs apart from their sources, real inputs, exact resume, named fields ----------------------------
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _trained_checkpoint(tmp_path: Path) -> Path:
+    """A checkpoint with a trainer state, as a run writes it: what an export over it would destroy."""
+    import torch
+
+    from fbcpr.core.checkpoint import save_checkpoint
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
+
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3}})
+    path = save_checkpoint(tmp_path / "run" / "checkpoints" / "step_0000000010", FBCPRModel(cfg.model), cfg,
+                           trainer_state=({"x": torch.zeros(3)}, {"env_steps": 10}))
+    (path.parent / "latest").write_text(path.name)
+    return path
+
+
+@pytest.mark.parametrize("out", ["same", "inside", "containing", "run", "link"])
+def test_export_refuses_an_output_that_is_inside_or_contains_its_source(tmp_path, out):
+    from fbcpr.cli.app import app
+
+    ckpt = _trained_checkpoint(tmp_path)
+    run = tmp_path / "run"
+    (tmp_path / "link").symlink_to(ckpt)
+    target = {"same": ckpt, "inside": ckpt / "export", "containing": ckpt.parent, "run": run,
+              "link": tmp_path / "link"}[out]
+    before = _files(run)
+    res = CliRunner().invoke(app, ["export", str(run if out == "run" else ckpt), str(target)])
+    assert res.exit_code == 1, res.output
+    assert "OUT: " in res.output and "the checkpoint to export" in res.output
+    assert _files(run) == before  # nothing written, nothing replaced: trainer_state.safetensors is still there
+
+
+def test_export_refuses_to_replace_a_file_or_a_folder_that_is_no_checkpoint(tmp_path):
+    from fbcpr.cli.app import app
+    from fbcpr.core.checkpoint import CheckpointError
+
+    ckpt = _trained_checkpoint(tmp_path)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("keep me")
+    res = CliRunner().invoke(app, ["export", str(ckpt), str(notes)])
+    assert res.exit_code == 1 and "is an existing file, not a folder" in res.output
+    assert notes.read_text() == "keep me"
+    folder = tmp_path / "documents"
+    folder.mkdir()
+    (folder / "thesis.tex").write_text("years of work")
+    bfm = _bfm()
+    with pytest.raises(CheckpointError, match="documents: a folder that holds files but no checkpoint"):
+        bfm.save(folder)
+    with pytest.raises(CheckpointError, match="notes.txt: an existing file, not a checkpoint folder"):
+        bfm.save(notes)
+    assert (folder / "thesis.tex").read_text() == "years of work" and notes.read_text() == "keep me"
+    assert (bfm.save(tmp_path / "empty") / "manifest.json").is_file()  # a new or empty folder, or a checkpoint:
+    assert (bfm.save(tmp_path / "empty") / "manifest.json").is_file()  # written (again) as before
+
+
+def test_every_command_that_writes_a_folder_keeps_it_apart_from_its_inputs(tmp_path):
+    from fbcpr.cli.app import app
+
+    ckpt = _trained_checkpoint(tmp_path)
+    before = _files(tmp_path / "run")
+    runner = CliRunner()
+    res = runner.invoke(app, ["train", "toy", "--out", str(ckpt / "run"), "--init-from", str(ckpt)])
+    assert res.exit_code == 1 and "--out: " in res.output and "lies inside --init-from" in res.output, res.output
+    res = runner.invoke(app, ["npmp", "distill", str(ckpt), "--motions", str(tmp_path), "--out", str(tmp_path / "n")])
+    assert res.exit_code == 1 and "--out: " in res.output and "lies inside --motions" in res.output, res.output
+    assert _files(tmp_path / "run") == before and not (tmp_path / "n").exists()
+    source = _amass(tmp_path / "walk.npz", 30.0)
+    raw = source.read_bytes()
+    res = runner.invoke(app, ["motions", "import", str(source), "--out", str(tmp_path)])
+    assert res.exit_code == 1 and "--out: " in res.output and "contains the source" in res.output, res.output
+    assert source.read_bytes() == raw  # the clip walk.npz would have replaced the AMASS file walk.npz
+
+
+@pytest.mark.parametrize("make", [
+    lambda: np.ones(6, dtype=np.complex64) * 1j,
+    lambda: __import__("torch").ones(6, dtype=__import__("torch").complex64),
+    lambda: np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0 + 2j]),
+])
+def test_act_refuses_complex_observations(make):
+    from fbcpr.core.errors import InputError
+
+    bfm = _bfm()
+    with pytest.raises(InputError, match=r"^obs: must be real numbers, got complex"):
+        bfm.act(make(), np.ones(bfm.z_dim, dtype=np.float32))
+    with pytest.raises(InputError, match=r"^z: must be real numbers"):
+        bfm.act(np.ones(6, dtype=np.float32), np.ones(bfm.z_dim, dtype=np.complex128))
+
+
+def test_act_says_a_z_of_none_is_not_numbers():
+    from fbcpr.core.errors import InputError
+
+    bfm = _bfm()
+    with pytest.raises(InputError, match=r"^z: must be numbers, found NoneType values \(None\)"):
+        bfm.act(np.ones(6, dtype=np.float32), [None] * bfm.z_dim)
+    with pytest.raises(InputError, match=r"^obs: must be numbers, got an array of <U1"):
+        bfm.act(np.array(list("123456")), np.ones(bfm.z_dim))
+    mixed = np.array([1, 2.5, True, np.float32(3), 4, 5], dtype=object)  # numbers in an object array still work
+    assert bfm.act(mixed, np.ones(bfm.z_dim)).shape == (3,)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda m: m["model"].update(z_dim=m["model"]["z_dim"] + 1), r"manifest.json: model.z_dim: \d+ disagrees"),
+    (lambda m: m["model"].update(obs_dim=True), "manifest.json: model.obs_dim: True disagrees"),
+    (lambda m: m.update(model=[1]), "manifest.json: model: must map"),
+    (lambda m: m["tensors"]["model.safetensors"].update({"obs_normalizer.mean": [7]}),
+     r"manifest.json: tensors.model.safetensors: disagrees with model.safetensors \(at 'obs_normalizer.mean'"),
+    (lambda m: m["tensors"].pop("model.safetensors"), "manifest.json: tensors.model.safetensors: missing"),
+    (lambda m: m.update(tensors="x"), "manifest.json: tensors: must map"),
+])
+def test_manifest_sizes_and_shapes_are_checked(tmp_path, edit, message):
+    from fbcpr.core.checkpoint import CheckpointError, load_checkpoint
+
+    path = _checkpoint(tmp_path)
+    manifest = json.loads((path / "manifest.json").read_text())
+    assert "obs_normalizer.mean" in manifest["tensors"]["model.safetensors"]
+    edit(manifest)
+    (path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(CheckpointError, match=message):
+        load_checkpoint(path)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (("CHANNELS 6", "CHANNELS 2.7"), r"walk.bvh:2: CHANNELS of joint Hips: expected a count .*, got 2.7$"),
+    (("CHANNELS 6", "CHANNELS -1"), r"walk.bvh:2: CHANNELS of joint Hips: expected a count .*, got -1$"),
+    (("Frames: 3", "Frames: -5"), r"walk.bvh:6: Frames: expected a count .*, got -5$"),
+    (("Frames: 3", "Frames: 2.5"), r"walk.bvh:6: Frames: expected a count .*, got 2.5$"),
+])
+def test_bvh_counts_name_the_field_and_line(edit, message):
+    text = _bvh("0.0333", "3")
+    assert edit[0] in text
+    with pytest.raises(BvhFormatError, match=message):
+        parse_bvh(text.replace(edit[0], edit[1]), "walk.bvh")
+
+
+@pytest.mark.parametrize("fps", [0.0, np.nan, -30.0, np.inf, 1e-6])
+def test_amass_frame_rate_errors_name_mocap_framerate(tmp_path, fps):
+    path = _amass(tmp_path / "a.npz", fps)
+    with pytest.raises(AmassFormatError, match=f"a.npz: mocap_framerate {fps:g}|a.npz: mocap_framerate must be"):
+        read_amass(path)
+
+
+def test_a_latest_symlink_loop_is_named(tmp_path):
+    from fbcpr.core.checkpoint import CheckpointError
+    from fbcpr.inference.bfm import BFM
+    from fbcpr.train.trainer import checkpoint_env_steps
+
+    path = _checkpoint(tmp_path)
+    (path.parent / "latest").symlink_to("latest")
+    for load in (lambda: BFM.load(tmp_path / "run"), lambda: BFM.load(path.parent / "latest"),
+                 lambda: checkpoint_env_steps(tmp_path / "run")):
+        with pytest.raises(CheckpointError, match=r"checkpoints/latest: a symbolic link loop"):
+            load()
+
+
+@pytest.mark.parametrize("typed, message", [
+    ("jump-2*", r"malformed reward expression .*: 'jump-2\*'"),
+    ("+jump-2", r"malformed reward expression .*: '\+jump-2'"),
+    ("jump-2*jumpp-2", r"^in 'jump-2\*jumpp-2': unknown reward task 'jumpp-2'"),
+])
+def test_reward_expressions_echo_what_was_typed(typed, message):
+    from fbcpr.core.errors import PromptError
+    from fbcpr.inference.prompt import reward_fn
+
+    with pytest.raises(PromptError, match=message):
+        reward_fn(typed)
+
+
+def test_stored_reward_prompts_without_metadata_say_so(tmp_path):
+    import torch
+
+    from fbcpr.core.checkpoint import CheckpointError, save_checkpoint
+    from fbcpr.inference.bfm import BFM
+
+    bfm = _bfm()
+    path = save_checkpoint(tmp_path / "c", bfm.model, bfm.config,
+                           reward_prompts=({"jump-2": torch.ones(bfm.z_dim)}, {}))
+    with pytest.raises(CheckpointError, match=r"reward_prompts.safetensors: its metadata is missing \(method, "
+                                              r"temperature, digest, states\)"):
+        BFM.load(path)
+
+
+def test_a_world_size_that_does_not_fit_fails_before_the_process_group_starts(tmp_path, monkeypatch):
+    import fbcpr.train.trainer as trainer_mod
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.core.errors import ConfigError
+
+    def started(*args, **kwargs):
+        raise AssertionError("the process group was started")
+
+    monkeypatch.setattr(trainer_mod.distributed, "setup", started)
+    monkeypatch.setenv("WORLD_SIZE", "3")
+    monkeypatch.setenv("RANK", "1")
+    cfg = config_from_dict({"model": {"preset": "tiny"}, "env": {"name": "toy"},
+                            "train": {"num_envs": 4, "rollout_steps": 40}})
+    with pytest.raises(ConfigError, match=r"^train.rollout_steps: .* do not split over 3 ranks"):
+        trainer_mod.Trainer(cfg, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+
+
+def test_env_state_restores_every_bit_of_the_simulation():
+    from humanoid_env.vector import VectorHumanoidEnv
+
+    env = VectorHumanoidEnv(2, num_threads=1)
+    env.reset(seed=0)
+    for _ in range(20):  # standing still on its feet: contacts, so the solver's warm start counts
+        env.step(np.zeros((2, 69)))
+    qpos, qvel, steps = env.get_state()
+    state = env.save_state()
+    ahead = [env.step(np.zeros((2, 69)))[4]["qpos"] for _ in range(3)]
+    from_qpos = VectorHumanoidEnv(2, num_threads=1)
+    from_qpos.reset(options={"qpos": qpos, "qvel": qvel})
+    assert any((from_qpos.step(np.zeros((2, 69)))[4]["qpos"] != q).any() for q in ahead)  # what qpos/qvel lose
+    restored = VectorHumanoidEnv(2, num_threads=1)
+    restored.reset(seed=5)
+    np.testing.assert_array_equal(restored.load_state(state), state["obs"])
+    for q in ahead:
+        np.testing.assert_array_equal(restored.step(np.zeros((2, 69)))[4]["qpos"], q)
+    assert restored.get_state()[2].tolist() == (steps + 3).tolist()
+
+
+def test_resume_restores_the_envs_whole_physics_state(tmp_path):
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.train.trainer import Trainer
+
+    cfg = config_from_dict({"model": {"preset": "tiny"}, "agent": {"batch_size": 32},
+                            "train": {"num_envs": 2, "buffer_capacity": 1000, "reward_buffer_size": 50,
+                                      "torch_threads": 1, "env_threads": 1, "eval_every": 0, "priority_every": 0,
+                                      "warmup_steps": 10**6, "rollout_steps": 2}})
+    a = Trainer(cfg, tmp_path / "run", progress=False)
+    for _ in range(10):
+        a._env_step()
+    a.save()
+    b = Trainer(cfg, tmp_path / "run", resume=True, progress=False)
+    np.testing.assert_array_equal(b.bundle.env.batch.state, a.bundle.env.batch.state)  # warm start and clock too
+    np.testing.assert_array_equal(b.obs, a.obs)
+    for _ in range(3):
+        a._env_step()
+        b._env_step()
+    np.testing.assert_array_equal(b.bundle.env.batch.state, a.bundle.env.batch.state)
+    a.close()
+    b.close()

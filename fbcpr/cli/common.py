@@ -5,6 +5,7 @@ import functools
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 import typer
@@ -66,6 +67,26 @@ def given(ctx: typer.Context, name: str) -> bool:
     not apply to what was asked can be rejected instead of silently ignored."""
     source = ctx.get_parameter_source(name)
     return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
+
+
+def checkpoint_sources(arg: str, value: str | Path | None) -> list[tuple[str, Path]]:
+    """The local folders a checkpoint argument reads, as (argument, path) pairs for
+    `fbcpr.core.paths.check_output_folder`: the path given (a run directory, a pointer file) and the checkpoint it
+    resolves to; `pretrained` is the shipped model's folder. A Hugging Face repo id reads nothing local: none."""
+    if value is None:
+        return []
+    from fbcpr.core.errors import FBCPRError
+    from fbcpr.inference.bfm import PRETRAINED_DIR, PRETRAINED_NAME, resolve_checkpoint
+
+    path = Path(value).expanduser()
+    if not os.path.lexists(path):
+        return [(arg, PRETRAINED_DIR)] if str(value) == PRETRAINED_NAME else []
+    found = [(arg, path)]
+    try:
+        found.append((arg, resolve_checkpoint(path)))
+    except FBCPRError:  # an unreadable source fails where it is read, with its own message
+        pass
+    return found
 
 
 def _bare_flags(params: list[Any]) -> list[Any]:

@@ -8,13 +8,14 @@ from pathlib import Path
 
 import typer
 
-from fbcpr.cli.common import cli_errors, console
+from fbcpr.cli.common import checkpoint_sources, cli_errors, console
 
 
 @cli_errors
 def export_command(
     checkpoint: str = typer.Argument(..., help="Checkpoint dir, run dir, 'pretrained' or a Hugging Face repo id."),
-    out: Path = typer.Argument(..., help="Folder to write the inference checkpoint into (replaced atomically)."),
+    out: Path = typer.Argument(..., help="Folder to write the inference checkpoint into (replaced atomically); "
+                                         "never CHECKPOINT itself, a folder inside or around it, or a file."),
     reward_samples: int = typer.Option(20_000, "--reward-samples", min=1,
                                        help="States kept for reward prompts (a seeded subsample of the buffer)."),
     half: bool = typer.Option(True, "--half/--full", help="Store the reward states as float16 (half the size)."),
@@ -38,6 +39,7 @@ def export_command(
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.core.errors import InputError
+    from fbcpr.core.paths import check_output_folder
     from fbcpr.inference.bfm import BFM
     from fbcpr.inference.interpolation import interpolate, with_reward_states
     from fbcpr.inference.reward_prompts import infer_reward_prompts
@@ -45,6 +47,11 @@ def export_command(
 
     if alpha is not None and interpolate_from is None:
         raise InputError("--alpha: only means something with --interpolate BASE")
+    sources = [*checkpoint_sources("the checkpoint to export", checkpoint),
+               *checkpoint_sources("--interpolate", interpolate_from)]
+    for src in reward_states_from or []:
+        sources += checkpoint_sources("--reward-states-from", src)
+    check_output_folder(out, "OUT", sources)  # before anything is read or written
     bfm = BFM.load(checkpoint)
     if interpolate_from is not None:
         bfm = interpolate(BFM.load(interpolate_from), bfm, 0.5 if alpha is None else alpha)

@@ -97,9 +97,11 @@ def import_cmd(
                                          "(default: <subject>.asf beside each, or the folder's only .asf)."),
 ) -> None:
     """Convert motion files to 30 Hz clips; a failing file is reported and skipped, and writes are atomic."""
+    from fbcpr.core.paths import check_output_folder
     from motions.clip import save_clip
     from motions.importers import import_file
 
+    check_output_folder(out, "--out", [("the source", src) for src in sources])
     if up_axis not in (None, "y", "z"):
         raise typer.BadParameter("--up-axis must be y or z")
     names = read_joint_map(joint_map) if joint_map is not None else None

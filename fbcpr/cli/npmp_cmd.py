@@ -10,7 +10,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from fbcpr.cli.common import HelpGroup, cli_errors, console, progress
+from fbcpr.cli.common import HelpGroup, checkpoint_sources, cli_errors, console, progress
 
 app = typer.Typer(help="Neural probabilistic motor primitives distilled from a BFM (NPMP).", no_args_is_help=True,
                   cls=HelpGroup)
@@ -58,7 +58,9 @@ def distill_command(
     from fbcpr.apps.npmp.config import npmp_config
     from fbcpr.apps.npmp.data import ExpertData
     from fbcpr.apps.npmp.distill import distill
+    from fbcpr.core.paths import check_output_folder
 
+    check_output_folder(out, "--out", [*checkpoint_sources("the expert", expert), ("--motions", motions)])
     overrides = {k: v for k, v in (("latent_dim", latent), ("beta", beta), ("alpha", alpha)) if v is not None}
     cfg = npmp_config({**overrides, "seed": seed}, preset=preset.value)
     if resume and not (out / "checkpoints" / "latest").exists():

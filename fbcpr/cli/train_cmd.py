@@ -1,11 +1,12 @@
 """`fbcpr train CONFIG.yaml`: online FB-CPR pre-training (fresh or resumed) into a run directory."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import typer
 
-from fbcpr.cli.common import cli_errors, console, err_console
+from fbcpr.cli.common import checkpoint_sources, cli_errors, console, err_console
 
 
 @cli_errors
@@ -29,6 +30,7 @@ def train_command(
     Data-parallel over processes and machines: `torchrun --nproc_per_node=N -m fbcpr train ...`."""
     from fbcpr.core.config import find_config, load_config
     from fbcpr.core.errors import ConfigError
+    from fbcpr.core.paths import check_output_folder
     from fbcpr.nn.distributed import launched_rank
     from fbcpr.train.trainer import checkpoint_env_steps, resolve_device, train
 
@@ -48,9 +50,11 @@ def train_command(
     run_dir = out if out is not None else Path("runs") / config_path.stem
     if resume and init_from is not None:
         raise ValueError("--init-from starts a new run; --resume continues one: give only one of them")
-    if resume and not (run_dir / "checkpoints" / "latest").exists():
+    check_output_folder(run_dir, "--out", checkpoint_sources("--init-from", init_from))
+    latest = run_dir / "checkpoints" / "latest"
+    if resume and not os.path.lexists(latest):  # a broken link is read below, which names what is wrong
         raise FileNotFoundError(f"--resume: no checkpoint to resume in {run_dir}")
-    if not resume and (run_dir / "checkpoints" / "latest").exists():
+    if not resume and os.path.lexists(latest):
         raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
     if resume:
         done = checkpoint_env_steps(run_dir)

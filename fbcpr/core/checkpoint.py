@@ -19,6 +19,7 @@ config.yaml and the manifest and picks the model class on load; a checkpoint tha
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -149,7 +150,42 @@ def read_tensors(root: Path, name: str, manifest: dict[str, Any]) -> tuple[dict[
             meta = json.loads((f.metadata() or {}).get(_META_KEY, "{}"))
     except Exception as e:  # safetensors raises several types on malformed files
         raise CheckpointError(f"{path}: unreadable safetensors file ({e})") from None
+    check_recorded_shapes(root, name, manifest, tensors)
     return tensors, meta
+
+
+def check_recorded_shapes(root: Path, name: str, manifest: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
+    """CheckpointError naming manifest.json and `tensors.<name>` unless the shapes the manifest records for file
+    `name` are those of its tensors (a manifest without `tensors`, as NPMP checkpoints write it, records none)."""
+    if "tensors" not in manifest:
+        return
+    recorded, where = manifest["tensors"], f"{root / MANIFEST_FILE}: tensors"
+    if not isinstance(recorded, dict):
+        raise CheckpointError(f"{where}: must map file names to {{tensor: shape}}, got {type(recorded).__name__}")
+    actual = {k: list(v.shape) for k, v in tensors.items()}
+    if name not in recorded:
+        raise CheckpointError(f"{where}.{name}: missing (the shapes of every safetensors file are recorded)")
+    if recorded[name] != actual:
+        entry = recorded[name] if isinstance(recorded[name], dict) else {}
+        diff = sorted(set(entry) ^ set(actual)) or sorted(k for k in actual if entry.get(k) != actual[k])
+        key = diff[0] if diff else "?"
+        raise CheckpointError(f"{where}.{name}: disagrees with {name} (at {key!r}: recorded "
+                              f"{entry.get(key, 'nothing')}, the file holds {actual.get(key, 'nothing')})")
+
+
+def check_recorded_sizes(path: Path, manifest: dict[str, Any], sizes: dict[str, int]) -> None:
+    """CheckpointError naming manifest.json and `model.<key>` unless the model sizes the manifest records are those
+    of the model built from the checkpoint (`sizes`); a manifest without `model` records none."""
+    if "model" not in manifest:
+        return
+    recorded, where = manifest["model"], f"{path / MANIFEST_FILE}: model"
+    if not isinstance(recorded, dict):
+        raise CheckpointError(f"{where}: must map obs_dim, action_dim and z_dim to sizes, "
+                              f"got {type(recorded).__name__}")
+    for key in sorted(set(recorded) | set(sizes)):
+        if recorded.get(key) != sizes.get(key) or isinstance(recorded.get(key), bool):
+            raise CheckpointError(f"{where}.{key}: {recorded.get(key, 'missing')!r} disagrees with the model its "
+                                  f"files hold ({sizes.get(key, 'no such size')})")
 
 
 def read_trainer_meta(path: str | Path) -> dict[str, Any]:
@@ -221,6 +257,7 @@ def save_checkpoint(
     without their observations (rebuilt on load), for checkpoints that ship. `reward_prompts` is the (tensors,
     metadata) pair of `fbcpr.inference.reward_prompts.RewardPrompts.to_tensors`."""
     path = Path(path)
+    check_replaceable(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
@@ -291,8 +328,27 @@ def _backup_name(path: Path) -> Path:
     return path.parent / f".{path.name}.previous"
 
 
+def check_replaceable(path: Path) -> None:
+    """CheckpointError unless a checkpoint may be written at `path`: nothing is there, an empty folder, or a
+    checkpoint (a folder with its manifest). A file, or a folder of anything else, is never replaced by one."""
+    if not os.path.lexists(path):
+        return
+    if not path.is_dir():
+        raise CheckpointError(f"{path}: an existing file, not a checkpoint folder; a checkpoint would replace it "
+                              "(choose another path)")
+    try:
+        holds = next(os.scandir(path), None) is not None
+    except OSError as e:
+        raise CheckpointError(f"{path}: cannot read the folder to be replaced ({e.strerror})") from None
+    if holds and not (path / MANIFEST_FILE).is_file():
+        raise CheckpointError(f"{path}: a folder that holds files but no checkpoint (no {MANIFEST_FILE}); a checkpoint "
+                              "would replace all of it (choose another path)")
+
+
 def swap_into_place(tmp: Path, path: Path) -> None:
-    """tmp -> path; an existing checkpoint is kept as a backup until the new one is in place."""
+    """tmp -> path; an existing checkpoint is kept as a backup until the new one is in place (`check_replaceable`:
+    only a checkpoint or an empty folder is replaced)."""
+    check_replaceable(path)
     backup = _backup_name(path)
     if path.exists():
         if backup.exists():
@@ -323,8 +379,15 @@ def pointed_checkpoint(root: Path, pointer: str = "latest") -> Path:
     try:
         name = file.read_text().strip()
     except FileNotFoundError:
+        if file.is_symlink():
+            raise CheckpointError(f"{file}: a symbolic link to {os.readlink(file)}, which does not exist") from None
         raise CheckpointError(f"{file}: missing (no checkpoint to resume)") from None
-    except (OSError, UnicodeDecodeError) as e:
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise CheckpointError(f"{file}: a symbolic link loop (it leads back to itself); it must be a file naming "
+                                  "a checkpoint folder beside it") from None
+        raise CheckpointError(f"{file}: unreadable pointer ({e})") from None
+    except UnicodeDecodeError as e:
         raise CheckpointError(f"{file}: unreadable pointer ({e})") from None
     if not name or name in (".", "..", *POINTERS) or "/" in name or os.sep in name:
         raise CheckpointError(f"{file}: must name a checkpoint folder beside it (e.g. step_0000100000), got {name!r}")
@@ -404,6 +467,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
         raise CheckpointError(f"{path / CONFIG_FILE}: {e}") from None
     tensors, _ = read_tensors(path, MODEL_FILE, manifest)
     load_state_strict(model, tensors, str(path / MODEL_FILE))
+    check_recorded_sizes(path, manifest, _model_sizes(model))
     model.to(device)
     model.eval()
     return Checkpoint(path=path, model=model, config=config, manifest=manifest)

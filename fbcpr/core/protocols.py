@@ -41,7 +41,9 @@ TaskReward = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 class EnvBundle:
     """What the trainer, agents and evaluations see of an environment, whichever it is (`fbcpr.envs` builds it)."""
 
-    env: Any                                              # gymnasium VectorEnv, SAME_STEP autoreset
+    env: Any                                              # gymnasium VectorEnv, SAME_STEP autoreset, with
+    # get_state() -> (qpos, qvel, episode steps), and save_state() -> dict of arrays / load_state(dict) -> obs: its
+    # whole state, which a resumed run restores to step bit for bit as the saved one would have
     library: Any                                          # demonstrations (MotionLibrary-like)
     obs_dim: int
     action_dim: int

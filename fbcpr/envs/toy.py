@@ -113,6 +113,20 @@ class PointMassVectorEnv(VectorEnv):
     def set_episode_steps(self, steps: np.ndarray) -> None:
         self.steps[:] = steps
 
+    def save_state(self) -> dict[str, np.ndarray]:
+        """Everything the next steps depend on (the point mass has no more than its state and step counters)."""
+        return {"qpos": self.qpos.copy(), "qvel": self.qvel.copy(), "steps": self.steps.copy()}
+
+    def load_state(self, state: dict[str, np.ndarray]) -> np.ndarray:
+        """Restore what `save_state` gave; returns the observation (ValueError naming a missing or mis-shaped
+        entry)."""
+        for key, shape in (("qpos", self.qpos.shape), ("qvel", self.qvel.shape), ("steps", self.steps.shape)):
+            if key not in state or tuple(np.shape(state[key])) != shape:
+                raise ValueError(f"env state: {key!r} must have shape {shape}")
+        self.qpos, self.qvel = np.array(state["qpos"], np.float64), np.array(state["qvel"], np.float64)
+        self.steps[:] = state["steps"]
+        return self._obs()
+
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         if seed is not None:
             self._np_random, _ = seeding.np_random(int(seed))

@@ -8,6 +8,8 @@ BFM also is an evaluation Agent (`act`, `z_dim`, `reward_z`, `goal_z`, `track_z`
 """
 from __future__ import annotations
 
+import numbers
+import os
 import re
 import tempfile
 from pathlib import Path
@@ -242,10 +244,27 @@ class BFM:
         return out.cpu().numpy().astype(np.float32)
 
     def _tensor(self, x: Any, name: str) -> torch.Tensor:
+        """`x` as a float32 tensor on the model's device; InputError naming `name` unless it holds real numbers (a
+        complex value would lose its imaginary part, and None would become NaN)."""
         if isinstance(x, torch.Tensor):
+            if x.is_complex():
+                raise InputError(f"{name}: must be real numbers, got complex values ({x.dtype})")
             return x.to(device=self.device, dtype=torch.float32)
         try:
-            arr = np.asarray(x, dtype=np.float32)
+            raw = np.asarray(x)
+        except (TypeError, ValueError) as err:
+            raise InputError(f"{name}: expected a numpy array or torch tensor of numbers ({err})") from None
+        if raw.dtype.kind == "c":
+            raise InputError(f"{name}: must be real numbers, got complex values ({raw.dtype})")
+        if raw.dtype.kind == "O":
+            bad = next((i for i, v in enumerate(raw.flat) if not isinstance(v, (numbers.Real, np.bool_))), -1)
+            if bad >= 0:  # None included, which float32 would turn into NaN
+                value = raw.flat[bad]
+                raise InputError(f"{name}: must be numbers, found {type(value).__name__} values ({value!r})")
+        elif raw.dtype.kind not in "biuf":
+            raise InputError(f"{name}: must be numbers, got an array of {raw.dtype}")
+        try:
+            arr = np.asarray(raw, dtype=np.float32)
         except (TypeError, ValueError) as err:
             raise InputError(f"{name}: expected a numpy array or torch tensor of numbers ({err})") from None
         if not arr.flags.writeable:  # read-only views (np.broadcast_to, memmaps): torch wants memory it may write
@@ -376,6 +395,10 @@ def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: 
                               f"({e.strerror})") from None
     if str(src) == PRETRAINED_NAME and not exists:
         return pretrained_dir()
+    if not exists and path.is_symlink():  # a dangling link or a loop: say so rather than "no such directory"
+        if path.name in POINTERS:
+            return pointed_checkpoint(path.parent, path.name)
+        raise CheckpointError(f"{path}: a symbolic link that leads nowhere (to a missing path, or in a loop)")
     if exists:
         if path.is_file() and path.name in POINTERS:  # RUN/checkpoints/latest or .../best: the folder it names
             return pointed_checkpoint(path.parent, path.name)
@@ -405,7 +428,7 @@ def _latest_in_run(path: Path) -> Path:
     if (path / MANIFEST_FILE).exists():
         return path
     for root in (path / "checkpoints", path):
-        if (root / "latest").exists():
+        if os.path.lexists(root / "latest"):  # a symbolic link loop included: reading it says so
             return latest_checkpoint(root)
     return path
 

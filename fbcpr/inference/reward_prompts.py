@@ -94,6 +94,10 @@ def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], 
     problem (other weights, other settings, a wrong shape, NaN, or a name the task registry does not know)."""
 
     file = where / PROMPTS_FILE
+    missing = [k for k in ("method", "temperature", "digest", "states") if k not in meta]
+    if missing:
+        raise CheckpointError(f"{file}: its metadata is missing ({', '.join(missing)}), so nothing says how or for "
+                              "which weights these prompts were inferred; export the model again to infer them")
     if meta.get("method") != METHOD or meta.get("temperature") != TEMPERATURE:
         raise CheckpointError(f"{file}: made by {meta.get('method')!r} inference at temperature "
                               f"{meta.get('temperature')!r}; prompts use {METHOD!r} at {TEMPERATURE}")

@@ -103,7 +103,9 @@ class Trainer:
         tc = cfg.train
         if tc.torch_threads:
             torch.set_num_threads(tc.torch_threads)
-        # device and env fail before the run directory exists
+        # device and env fail before the run directory exists; a world size that does not fit fails before the
+        # process group starts, so every rank exits at once with the same one-line error
+        check_world_size(cfg, distributed.launched_world_size())
         self.replicas, self.device = distributed.setup(resolve_device(tc.device), tc.dist_timeout_s, tc.dist_backend)
         r = self.replicas
         self.progress_enabled = progress and r.is_main
@@ -576,6 +578,8 @@ class Trainer:
             self._saved_at = self.env_steps
             return path
         qpos, qvel, episode_steps = self.bundle.env.get_state()
+        # the env's whole state (MuJoCo's integration state, counters), for a resume that steps exactly as this run
+        tensors.update({f"env_state.{k}": torch.as_tensor(v) for k, v in self.bundle.env.save_state().items()})
         tensors.update({"torch_rng": torch.get_rng_state(), "env_qpos": torch.as_tensor(qpos),
                         "env_qvel": torch.as_tensor(qvel), "env_obs": torch.as_tensor(self.obs),
                         "z": self.z.cpu(), "z_age": torch.as_tensor(self.z_age),
@@ -730,10 +734,19 @@ class Trainer:
                 self.batches.load_state(tensors["device_batches_generator"])
             self.z = tensors["z"].to(self.device)
             self.z_age = tensors["z_age"].numpy().copy()
-            self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(),
-                                                         "qvel": tensors["env_qvel"].numpy()})
+            env_state = {k.removeprefix("env_state."): v.numpy() for k, v in tensors.items()
+                         if k.startswith("env_state.")}
+            if env_state:  # the whole state: the resumed envs step bit for bit as the saved ones would have
+                try:
+                    self.bundle.env.load_state(env_state)
+                except ValueError as err:  # the env's own error types included: another env or MuJoCo build
+                    raise CheckpointError(f"{ckpt.path}/trainer_state.safetensors: {err}") from None
+                self.obs = tensors["env_obs"].numpy().copy()
+            else:  # checkpoints from before the whole state was saved: qpos and qvel, close but not bit-exact
+                self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(),
+                                                             "qvel": tensors["env_qvel"].numpy()})
+                self.bundle.env.set_episode_steps(tensors["env_episode_steps"].numpy())
             self.bundle.env.np_random.bit_generator.state = meta["env_rng"]
-            self.bundle.env.set_episode_steps(tensors["env_episode_steps"].numpy())
         except KeyError as e:
             raise CheckpointError(f"{ckpt.path}/trainer_state.safetensors: missing entry {e}") from None
         replay = ckpt.replay_buffer()

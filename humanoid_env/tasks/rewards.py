@@ -414,9 +414,17 @@ def get_reward(name: str) -> _Reward:
     text = name.strip().replace(" ", "")
     means = []
     for part in text.split("+"):
-        factors = [_parse_single(p.removeprefix("smpl_")) for p in part.split("*")] if part else []
-        if not factors or any(not p for p in part.split("*")):
-            raise _unknown(name, "malformed reward expression")
+        pieces = part.split("*") if part else []
+        if not pieces or not all(pieces):  # 'jump-2*', '+a', 'a**b': a term left empty
+            raise _unknown(name, "malformed reward expression (a term beside '*' or '+' is empty):")
+        factors = []
+        for piece in pieces:
+            try:
+                factors.append(_parse_single(piece.removeprefix("smpl_")))
+            except ValueError as err:
+                if piece == text:
+                    raise
+                raise ValueError(f"in {name!r}: {err}") from None
         means.append(factors[0] if len(factors) == 1 else Product(tuple(factors)))
     return means[0] if len(means) == 1 else Mean(tuple(means))
 

@@ -62,9 +62,12 @@ def read_amass(path: str | Path) -> tuple[np.ndarray, np.ndarray, float]:
         raise AmassFormatError(f"{path}: poses or trans contain NaN or inf")
     if fps.size != 1 or fps.dtype.kind not in "fiu":
         raise AmassFormatError(f"{path}: mocap_framerate must be a number, got {fps!r}")
-    check_frame_times(1.0 / float(fps) if float(fps) != 0 else np.inf, str(path), AmassFormatError,
-                      repeats=poses.shape[0] - 1)
-    return poses.astype(np.float64), trans.astype(np.float64), float(fps)
+    rate = float(fps.reshape(()))
+    if np.isnan(rate) or rate == 0:  # no frame time at all; other rates out of range are named below
+        raise AmassFormatError(f"{path}: mocap_framerate must be a positive, finite number of frames per second, "
+                               f"got {rate:g}")
+    check_frame_times(1.0 / rate, f"{path}: mocap_framerate {rate:g}", AmassFormatError, repeats=poses.shape[0] - 1)
+    return poses.astype(np.float64), trans.astype(np.float64), rate
 
 
 def smpl_to_qpos(poses: np.ndarray, trans: np.ndarray, up_axis: str = "z") -> np.ndarray:

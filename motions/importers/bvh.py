@@ -89,10 +89,20 @@ def parse_bvh(text: str, where: str = "BVH") -> tuple[list[Joint], np.ndarray, f
     take()
     joints: list[Joint] = []
 
-    def count() -> int:
+    def line_of(index: int) -> int:
+        """The 1-based line of token `index`, found by counting again (only for an error's message)."""
+        seen = 0
+        for number_, line in enumerate(text.splitlines(), 1):
+            seen += len(line.split())
+            if seen > index:
+                return number_
+        return text.count("\n") + 1
+
+    def count(field: str) -> int:
         value = number()
         if not (np.isfinite(value) and value == int(value) and value >= 0):
-            raise BvhFormatError(f"{where}: expected a count, got {value:g}")
+            raise BvhFormatError(f"{where}:{line_of(pos - 1)}: {field}: expected a count (a whole number >= 0), "
+                                 f"got {tokens[pos - 1]}")
         return int(value)
 
     def parse_joint(parent: int, end_site: bool, depth: int) -> None:
@@ -113,7 +123,7 @@ def parse_bvh(text: str, where: str = "BVH") -> tuple[list[Joint], np.ndarray, f
             if tok == "}":
                 return
             if tok == "CHANNELS" and not end_site:
-                joint.channels = [take() for _ in range(count())]
+                joint.channels = [take() for _ in range(count(f"CHANNELS of joint {name}"))]
                 bad = [c for c in joint.channels if c[1:] not in ("position", "rotation") or c[0] not in "XYZ"]
                 if bad:
                     raise BvhFormatError(f"{where}: joint {name} has unknown channels {bad}")
@@ -129,7 +139,7 @@ def parse_bvh(text: str, where: str = "BVH") -> tuple[list[Joint], np.ndarray, f
     parse_joint(-1, False, 0)
     if take() != "MOTION" or take() != "Frames:":
         raise BvhFormatError(f"{where}: expected 'MOTION' and 'Frames:' after the hierarchy")
-    n_frames = count()
+    n_frames = count("Frames")
     if take() != "Frame" or take() != "Time:":
         raise BvhFormatError(f"{where}: expected 'Frame Time:'")
     frame_time = number()

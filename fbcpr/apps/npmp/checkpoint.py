@@ -19,6 +19,8 @@ from fbcpr.core.checkpoint import (
     MODEL_FILE,
     TRAINER_FILE,
     CheckpointError,
+    check_recorded_sizes,
+    check_replaceable,
     load_state_strict,
     read_manifest,
     read_tensors,
@@ -58,6 +60,7 @@ def save_npmp(path: str | Path, model: NPMPModel, info: dict[str, Any],
               trainer_state: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None) -> Path:
     """Write a checkpoint directory atomically (the previous one at `path` stays readable until the swap)."""
     path = Path(path)
+    check_replaceable(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
@@ -90,4 +93,6 @@ def load_npmp(path: str | Path, device: str | torch.device = "cpu") -> NPMPCheck
     model = NPMPModel(cfg, *dims)
     tensors, _ = read_tensors(path, MODEL_FILE, manifest)
     load_state_strict(model, tensors, str(path / MODEL_FILE))
+    check_recorded_sizes(path, manifest, {"obs_dim": model.obs_dim, "action_dim": model.action_dim,
+                                          "z_dim": model.z_dim})
     return NPMPCheckpoint(path=path, model=model.to(device).eval(), info=info, manifest=manifest)

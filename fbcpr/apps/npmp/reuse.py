@@ -55,6 +55,23 @@ class LatentActionEnv(VectorWrapper):
             raise AttributeError(name)
         return getattr(self.env, name)
 
+    def save_state(self) -> dict[str, np.ndarray]:
+        """The wrapped env's state (`save_state`) with this wrapper's: the previous latent z_{t-1} of every env and the
+        env observation the decoder reads next, so a resumed run goes on exactly."""
+        inner: Any = self.env  # a batched env of `fbcpr.envs` (humanoid or toy), which saves its own state
+        return {**inner.save_state(), "latent_z": self.z.copy(), "latent_env_obs": self._env_obs.copy()}
+
+    def load_state(self, state: dict[str, np.ndarray]) -> np.ndarray:
+        """Restore what `save_state` gave; returns the observation ([env observation, previous latent])."""
+        for key, like in (("latent_z", self.z), ("latent_env_obs", self._env_obs)):
+            if key not in state or tuple(np.shape(state[key])) != like.shape:
+                raise InputError(f"env state: {key!r} must have shape {like.shape}")
+        inner: Any = self.env
+        inner.load_state({k: v for k, v in state.items() if not k.startswith("latent_")})
+        self.z = np.array(state["latent_z"], np.float32)
+        self._env_obs = np.array(state["latent_env_obs"], np.float32)
+        return self._observe(self._env_obs, self.z)
+
     def _observe(self, env_obs: np.ndarray, z: np.ndarray) -> np.ndarray:
         return np.concatenate([np.asarray(env_obs, np.float32), z], -1)
 
