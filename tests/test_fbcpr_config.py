@@ -177,3 +177,17 @@ def test_other_relative_paths_stay_relative_to_the_config_file(tmp_path, monkeyp
     cfg = load_config(p)
     assert cfg.env.motions == str(tmp_path / "proj" / "clips" / "a.npz")
     assert cfg.env.focus_motions == str(tmp_path / "d" / "rises")
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in CONFIGS.glob("*.yaml")))
+def test_shipped_configs_split_over_1_2_4_and_8_processes(name):
+    """`torchrun --nproc_per_node=N -m fbcpr train NAME` runs for N in 1, 2, 4, 8: each phase's global env steps
+    are the same as one process's, so the update-to-data ratio does not change with N."""
+    import math
+
+    from fbcpr.train.schedule import check_world_size, phase_steps
+
+    cfg = load_config(CONFIGS / f"{name}.yaml")
+    for world in (1, 2, 4, 8):
+        check_world_size(cfg, world)
+        assert phase_steps(cfg.train, world) * world == math.ceil(cfg.train.rollout_steps / cfg.train.num_envs)
