@@ -1,5 +1,6 @@
 """Online trainer on the toy env: exact resume, clean stop on signals, buffer, CLI."""
 import os
+import re
 import shutil
 import signal
 import threading
@@ -216,21 +217,29 @@ def test_noop_resume_changes_nothing_on_disk_and_more_steps_continue(tmp_path):
     cfg_path.write_text(dump_config(tiny_cfg(total_env_steps=80, save_buffer=False)))
     run = tmp_path / "run"
     runner = CliRunner()
-    assert runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--no-progress"]).exit_code == 0
+    first = runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--no-progress"])
+    assert first.exit_code == 0, first.output
+    updates_before = int(re.search(r"([\d,]+) updates", first.output).group(1))
     snapshot = tree(run)
     res = runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--resume", "--steps", "40", "--no-progress"])
     assert res.exit_code == 0 and "nothing to do" in res.output, res.output
     assert tree(run) == snapshot
     res = runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--resume", "--more-steps", "40",
                               "--no-progress"])
-    assert res.exit_code == 0 and "finished at 120 env steps" in res.output, res.output
+    # no replay buffer in the checkpoint: 40 env steps refill it (said up front), then 40 of learning, as many
+    # updates as the first run made in its 40 env steps after its 40 of warm-up
+    assert res.exit_code == 0 and "finished at 160 env steps" in res.output, res.output
+    said = " ".join(res.output.split())
+    assert "refills an empty buffer for 40 env steps" in said and "then 40 env steps of learning" in said
+    assert said.index("refills") < said.index("finished")
+    assert int(re.search(r"([\d,]+) updates", res.output).group(1)) == 2 * updates_before > 0
     res = runner.invoke(app, ["train", str(cfg_path), "--out", str(tmp_path / "new"), "--more-steps", "40"])
     assert res.exit_code != 0 and "--resume" in res.output
     # the API side: a run with nothing to do does not rewrite its checkpoint
     ckpt = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()
     mtime = (ckpt / "manifest.json").stat().st_mtime_ns
     tr = Trainer(tiny_cfg(total_env_steps=80, save_buffer=False), run, resume=True, progress=False)
-    assert tr.run()["env_steps"] == 120 and (ckpt / "manifest.json").stat().st_mtime_ns == mtime
+    assert tr.run()["env_steps"] == 160 and (ckpt / "manifest.json").stat().st_mtime_ns == mtime
 
 
 def test_sighup_stops_like_sigint(tmp_path):
