@@ -191,3 +191,20 @@ def test_shipped_configs_split_over_1_2_4_and_8_processes(name):
     for world in (1, 2, 4, 8):
         check_world_size(cfg, world)
         assert phase_steps(cfg.train, world) * world == math.ceil(cfg.train.rollout_steps / cfg.train.num_envs)
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"model": {"presett": "tiny"}}, "model.presett: unknown key (did you mean 'preset'?"),
+    ({"agnet": {"batch_size": 8}}, "agnet: unknown key (did you mean 'agent'?"),
+    ({"train": {"num_env": 4}}, "train.num_env: unknown key (did you mean 'num_envs'?"),
+])
+def test_a_misspelt_key_gets_a_suggestion(data, message):
+    with pytest.raises(ConfigError) as err:
+        config_from_dict(data)
+    assert str(err.value).startswith(message)
+
+
+def test_the_model_keys_listed_include_preset():
+    with pytest.raises(ConfigError) as err:
+        config_from_dict({"model": {"zzz": 1}})
+    assert "preset" in str(err.value).split("valid keys:")[1] and "did you mean" not in str(err.value)
