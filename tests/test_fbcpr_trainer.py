@@ -426,3 +426,27 @@ def test_cuda_graph_on_the_cpu_is_said_to_be_ignored(tmp_path):
     tr = Trainer(replace(cfg, agent=replace(cfg.agent, cuda_graph=True)), tmp_path / "run", progress=False)
     assert not tr.agent.graphed
     assert "agent.cuda_graph: ignored on cpu" in (tmp_path / "run" / "warnings.txt").read_text()
+
+
+def test_a_log_gets_whole_plain_lines_not_a_cut_bar(tmp_path, capsys):
+    """With the bar asked for but stderr not a terminal (a log, CI), training prints the plain progress lines, with
+    every metric, instead of the bar's last state cut to 80 columns."""
+    tr = Trainer(tiny_cfg(total_env_steps=80), tmp_path, progress=True)
+    assert not tr.progress_enabled
+    tr.run()
+    out, err = capsys.readouterr()
+    lines = [line for line in out.splitlines() if "steps/s" in line]
+    assert lines and lines[-1].startswith("80/80 steps (100.0%)") and "| u " in lines[-1]
+    assert "…" not in out + err and "━" not in err
+
+
+def test_steps_round_up_to_whole_phases_with_a_message(tmp_path):
+    from fbcpr.cli.app import app
+
+    cfg_path = tmp_path / "tiny.yaml"
+    cfg_path.write_text(dump_config(tiny_cfg(warmup_steps=100)))  # phases of 20 env steps (rollout_steps: 20)
+    res = CliRunner().invoke(app, ["train", str(cfg_path), "--out", str(tmp_path / "r"), "--steps", "10"])
+    said = " ".join(res.output.split())
+    assert res.exit_code == 0, res.output
+    assert "10 env steps rounded up to 20" in said and "the run ends at 20" in said
+    assert "finished at 20 env steps" in said and "20/10" not in said

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -71,6 +72,7 @@ def train_command(
                 console.print(f"nothing to do: {run_dir} is at {done:,} env steps, and the run's total is "
                               f"{cfg.train.total_env_steps:,} (--steps is the total; --more-steps N trains N more)")
             return
+    _whole_phases(cfg, checkpoint_env_steps(run_dir) if resume else 0)
     try:
         summary = train(cfg, run_dir, resume=resume, progress=progress, init_from=init_from)
     except KeyboardInterrupt:  # a second Ctrl-C: the checkpoints on disk are whole (written atomically)
@@ -83,6 +85,21 @@ def train_command(
     if launched_rank() == 0:
         console.print(f"{state} at {summary['env_steps']:,} env steps, {summary['updates']:,} updates; "
                       f"checkpoint: {summary['checkpoint']}")
+
+
+def _whole_phases(cfg: Any, done: int) -> None:
+    """Round the run's total up to whole rollout phases (a run stops only between phases), and say so."""
+    from fbcpr.nn.distributed import launched_rank
+    from fbcpr.train.schedule import phase_steps
+
+    tc = cfg.train
+    phase = phase_steps(tc, 1) * tc.num_envs  # env steps a phase collects, over all processes
+    total = done + -(-(tc.total_env_steps - done) // phase) * phase
+    if total != tc.total_env_steps and launched_rank() == 0:
+        console.print(f"train: {tc.total_env_steps - done:,} env steps rounded up to {total - done:,}, whole rollout "
+                      f"phases of {phase:,} (train.rollout_steps over train.num_envs); the run ends at {total:,}",
+                      highlight=False)
+    tc.total_env_steps = total
 
 
 def register(app: typer.Typer) -> None:

@@ -108,7 +108,9 @@ class Trainer:
         # device and env fail before the run directory exists
         self.replicas, self.device = distributed.setup(resolve_device(tc.device), tc.dist_timeout_s, tc.dist_backend)
         r = self.replicas
-        self.progress_enabled = progress and r.is_main
+        # the live bar only on a terminal: in a log it would print its last state once, metrics cut to its width,
+        # so a log gets the plain line every train.log_every env steps instead
+        self.progress_enabled = progress and r.is_main and Console(stderr=True).is_terminal
         check_world_size(cfg, r.world_size)
         r.check_replicated({"config": torch.frombuffer(bytearray(config_json(cfg).encode()), dtype=torch.uint8)},
                            "the run config")
