@@ -59,6 +59,7 @@ def train_command(
         done, refill = checkpoint_env_steps(run_dir), resume_refill_steps(run_dir, cfg)
         if more_steps is not None:  # N steps of learning: after the refill of an empty buffer, if there is one
             cfg.train.total_env_steps = done + refill + more_steps
+        _whole_phases(cfg, done)
         if refill and done < cfg.train.total_env_steps and launched_rank() == 0:
             learn = cfg.train.total_env_steps - done - refill
             then = (f"then {learn:,} env steps of learning, to {cfg.train.total_env_steps:,} in all" if learn > 0
@@ -72,7 +73,8 @@ def train_command(
                 console.print(f"nothing to do: {run_dir} is at {done:,} env steps, and the run's total is "
                               f"{cfg.train.total_env_steps:,} (--steps is the total; --more-steps N trains N more)")
             return
-    _whole_phases(cfg, checkpoint_env_steps(run_dir) if resume else 0)
+    if not resume:
+        _whole_phases(cfg, 0)
     try:
         summary = train(cfg, run_dir, resume=resume, progress=progress, init_from=init_from)
     except KeyboardInterrupt:  # a second Ctrl-C: the checkpoints on disk are whole (written atomically)
@@ -93,6 +95,8 @@ def _whole_phases(cfg: Any, done: int) -> None:
     from fbcpr.train.schedule import phase_steps
 
     tc = cfg.train
+    if tc.total_env_steps <= done:  # nothing to do, which the command says
+        return
     phase = phase_steps(tc, 1) * tc.num_envs  # env steps a phase collects, over all processes
     total = done + -(-(tc.total_env_steps - done) // phase) * phase
     if total != tc.total_env_steps and launched_rank() == 0:
