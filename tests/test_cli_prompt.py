@@ -62,12 +62,16 @@ def test_prompt_reward_prints_return(ckpt, tmp_path):
         import imageio.v2 as imageio
 
         assert len(imageio.mimread(video)) == 5  # the start frame plus one per step
+        # rendering and encoding say so, in lines (not a terminal here)
+        assert "reward move-ego-0-0, rendering: 100% (4/4)" in res.output and "encoding 5 frames" in res.output
 
 
 def test_prompt_goal_and_imitate_metrics(ckpt, clip_path):
     res = run("prompt", ckpt, "--goal", "t_pose", "--steps", "3")
     assert res.exit_code == 0, res.output
-    assert "final d_smpl" in res.output and "proximity" in res.output
+    assert "final d_smpl" in res.output and "proximity" in res.output and "min d_smpl" in res.output
+    # success means the pose was reached at some step, which the final distance alone does not show
+    assert "reached (d <= 2 at any step)" in res.output and "success (d <= 2)" not in res.output
     res = run("prompt", ckpt, "--imitate", clip_path, "--steps", "3")
     assert res.exit_code == 0, res.output
     assert "EMD to clip" in res.output
@@ -194,10 +198,60 @@ train: {total_env_steps: 100000, num_envs: 4, warmup_steps: 100, rollout_steps: 
     summary = json.loads((out / "demo_summary.json").read_text())
     assert summary["training"]["env_steps"] == 160 and summary["training"]["updates"] > 0
     assert set(summary["scores"]) == {"FB-CPR", "zero action", "random action"}
-    assert [s["metric"] for s in summary["scores"]["FB-CPR"]] == ["return", "proximity", "success", "EMD", "success"]
-    assert 0 <= summary["beats_floors"] <= 5 and "30M env steps" in summary["verdict"]
+    assert [s["metric"] for s in summary["scores"]["FB-CPR"]] == ["return", "share held", "EMD"]
+    assert 0 <= summary["beats_floors"] <= 3 and "30M env steps" in summary["verdict"]
     assert "zero-shot prompts" in res.output
     again = run("demo", "--train", "--config", cfg, "--steps", "10", "--out", out)  # never overwrites a run
     assert again.exit_code == 1 and "already holds a run" in again.output
     untrained = run("demo", "--steps", "10", "--out", tmp_path / "x")  # training options need --train
     assert untrained.exit_code == 1 and "--steps applies to training" in untrained.output
+
+
+def test_commands_default_to_the_shipped_model_and_keep_the_positional_forms(ckpt, clip_path):
+    """`fbcpr prompt --reward X`, `fbcpr track CLIP`, `fbcpr timeline SPEC` and `fbcpr eval` run the shipped model;
+    `--model PATH` or a leading CKPT argument (the older form: `track CKPT CLIP`) names another."""
+    shipped = run("prompt", "--reward", "move-ego-0-0", "--steps", "3")
+    assert shipped.exit_code == 0, shipped.output
+    assert "stored at export" in shipped.output  # the shipped model stores its reward prompts; the tiny one does not
+    named = run("prompt", "pretrained", "--reward", "move-ego-0-0", "--steps", "3")
+    assert named.exit_code == 0 and "stored at export" in named.output, named.output
+    for args in (["prompt", "--model", ckpt], ["prompt", ckpt]):
+        res = run(*args, "--reward", "move-ego-0-0", "--steps", "3")
+        assert res.exit_code == 0 and "inferred from the checkpoint" in res.output, (args, res.output)
+    twice = run("prompt", ckpt, "--model", "pretrained", "--reward", "move-ego-0-0")
+    assert twice.exit_code != 0 and "named twice" in twice.output
+
+    for args in (["track", "--model", ckpt, clip_path], ["track", ckpt, clip_path], ["track", "stand"]):
+        res = run(*args)
+        assert res.exit_code == 0 and "tracking success" in res.output, (args, res.output)
+    assert "8 / 8" in run("track", "--model", ckpt, clip_path).output  # one value: the clip
+    three = run("track", ckpt, clip_path, clip_path)
+    assert three.exit_code != 0 and "[CKPT] CLIP" in three.output
+
+    for args in (["timeline", "move-ego-0-0:0.1"], ["timeline", ckpt, "move-ego-0-0:0.1"]):
+        res = run(*args)
+        assert res.exit_code == 0 and "mean reward" in res.output, (args, res.output)
+
+    res = run("eval", "--suite", "reward", "--tasks", "move-ego-0-0", "--episodes", "1", "--steps", "3", "--out",
+              clip_path.parent / "eval")
+    assert res.exit_code == 0, res.output
+    assert json.loads((clip_path.parent / "eval" / "results.json").read_text())["agent"] == "pretrained"
+
+
+def test_a_misspelt_pretrained_gets_a_suggestion():
+    res = run("prompt", "pretraind", "--reward", "jump-2")
+    assert res.exit_code == 1 and "did you mean 'pretrained'" in res.output
+
+
+def test_tracking_frames_are_labelled_agent_and_reference():
+    from fbcpr.cli.prompt_cmd import side_by_side
+
+    agent, reference = np.full((60, 80, 3), 200, np.uint8), np.full((60, 80, 3), 200, np.uint8)
+    frame = side_by_side(agent, reference)
+    assert frame.shape == (60, 160, 3)
+    left, right = frame[:, :80], frame[:, 80:]
+    for half in (left, right):
+        label = half[:18, :40]  # the box of the shorter word, "agent"
+        assert (label == 0).any() and (label > 100).any()   # light text on a black box
+        assert (half[30:] == 200).all()                     # the picture below it untouched
+    assert not np.array_equal(left[:18], right[:18])      # two different words

@@ -244,8 +244,67 @@ def test_eval_says_what_it_will_simulate(library):
 
     chosen = {"reward": ["a", "b"], "goal": ["t_pose"], "tracking": ["stand"]}
     text = plan(chosen, ("reward", "goal", "tracking"), 10, 300, library)
-    assert text == ("evaluating 2 reward tasks x 10 episodes x 300 steps, 1 goal poses x 10 episodes x 300 steps, "
-                    "1 clips to track: 9,029 env steps")
+    assert text.startswith("evaluating 2 reward tasks x 10 episodes x 300 steps, 1 goal poses x 10 episodes x 300 "
+                           "steps, 1 clips to track: 9,029 env steps, about 1 minute on 2 CPU cores")
+
+
+def test_the_estimate_is_in_minutes_and_scales_with_the_work():
+    """The defaults (every task, 10 episodes of 300 steps) take about 40 minutes on 2 CPU cores; the quick mode
+    and one-episode runs far less."""
+    from humanoid_env.tasks import GOALS, TASKS
+    from motions.synthetic import default_library
+
+    from fbcpr.cli.eval_cmd import QUICK_CLIPS, QUICK_EPISODES, QUICK_STEPS, QUICK_TASKS
+    from fbcpr.eval.runner import estimate_seconds, plan
+
+    lib, suites = default_library(), ("reward", "goal", "tracking")
+    everything = {"reward": list(TASKS), "goal": list(GOALS), "tracking": list(lib.names)}
+    assert 30 * 60 <= estimate_seconds(everything, suites, 10, 300, lib) <= 50 * 60
+    assert "about 4" in plan(everything, suites, 10, 300, lib)
+    one = estimate_seconds(everything, suites, 1, 60, lib)
+    assert 30 <= one <= 150
+    quick = {"reward": [t for t in QUICK_TASKS if t in TASKS], "goal": [t for t in QUICK_TASKS if t in GOALS],
+             "tracking": list(lib.names[:QUICK_CLIPS])}
+    assert estimate_seconds(quick, suites, QUICK_EPISODES, QUICK_STEPS, lib) < 45
+    assert "under a minute" in plan(quick, suites, QUICK_EPISODES, QUICK_STEPS, lib)
+
+
+def test_eval_quick_runs_a_short_list_and_logs_progress_lines(tmp_path, monkeypatch):
+    """`fbcpr eval --quick`: its own few tasks and clips, short episodes; in a log (not a terminal) the progress is
+    plain lines with the time left, not a bar drawn once at the end."""
+    from fbcpr.cli.app import app
+    from fbcpr.cli.eval_cmd import QUICK_TASKS
+
+    res = CliRunner().invoke(app, ["eval", "zero", "--quick", "--out", str(tmp_path / "q")])
+    assert res.exit_code == 0, res.output
+    results = json.loads((tmp_path / "q" / "results.json").read_text())
+    assert (results["episodes"], results["steps"]) == (2, 150)
+    done = set(results["reward"]) | set(results["goal"]) | set(results["tracking"])
+    assert done == {*QUICK_TASKS, "stand", "tpose"}
+    assert "under a minute on 2 CPU cores" in " ".join(res.output.split())
+    assert "reward: 100% (600/600)" in res.output and "left" in res.output
+    assert "━" * 40 not in res.output  # no bar (the report's tables use shorter runs of it)
+    both = CliRunner().invoke(app, ["eval", "zero", "--quick", "--tasks", "jump-2", "--out", str(tmp_path / "b")])
+    assert both.exit_code != 0 and "--quick or --tasks" in both.output
+
+
+def test_line_progress_writes_lines_with_the_time_left():
+    import io
+
+    from rich.console import Console
+
+    from fbcpr.core.progress import LineProgress, progress_display
+
+    buf = io.StringIO()
+    bar = progress_display(Console(file=buf, width=80), "x")
+    assert isinstance(bar, LineProgress)
+    with bar:
+        task = bar.add_task("render", total=20)
+        for _ in range(20):
+            bar.advance(task)
+    lines = buf.getvalue().splitlines()
+    assert lines[-1].startswith("render: 100% (20/20)") and "elapsed" in lines[-1] and "left" in lines[-1]
+    assert 1 <= len(lines) <= 10  # a line a tenth at most, and the last one always
 def test_single_task_checkpoints_are_evaluated_on_their_own_task(tmp_path, library):
     """A TD3 checkpoint runs its reward task only; an imitation-trained one tracks the clips with NEAR's metrics."""
     from fbcpr.core.checkpoint import save_checkpoint

@@ -136,3 +136,16 @@ def test_crash_between_renames_falls_back_to_previous(tmp_path, monkeypatch):
     save_checkpoint(tmp_path / "c", new, cfg)  # the next save completes normally
     assert same_weights(load_checkpoint(tmp_path / "c").model, new)
     assert sorted(os.listdir(tmp_path)) == ["c"]
+
+
+def test_checkpoint_files_follow_the_umask(tmp_path):
+    """safetensors writes its files 0600; a checkpoint's files get the permissions the umask gives (0644 here)."""
+    cfg, model = make()
+    old = os.umask(0o022)
+    try:
+        path = save_checkpoint(tmp_path / "ck", model, cfg, reward_buffer=reward_buffer())
+    finally:
+        os.umask(old)
+    modes = {p.name: p.stat().st_mode & 0o777 for p in path.iterdir()}
+    assert {"model.safetensors", "reward_buffer.safetensors"} <= set(modes)
+    assert set(modes.values()) == {0o644}, modes

@@ -177,3 +177,34 @@ def test_other_relative_paths_stay_relative_to_the_config_file(tmp_path, monkeyp
     cfg = load_config(p)
     assert cfg.env.motions == str(tmp_path / "proj" / "clips" / "a.npz")
     assert cfg.env.focus_motions == str(tmp_path / "d" / "rises")
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in CONFIGS.glob("*.yaml")))
+def test_shipped_configs_split_over_1_2_4_and_8_processes(name):
+    """`torchrun --nproc_per_node=N -m fbcpr train NAME` runs for N in 1, 2, 4, 8: each phase's global env steps
+    are the same as one process's, so the update-to-data ratio does not change with N."""
+    import math
+
+    from fbcpr.train.schedule import check_world_size, phase_steps
+
+    cfg = load_config(CONFIGS / f"{name}.yaml")
+    for world in (1, 2, 4, 8):
+        check_world_size(cfg, world)
+        assert phase_steps(cfg.train, world) * world == math.ceil(cfg.train.rollout_steps / cfg.train.num_envs)
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"model": {"presett": "tiny"}}, "model.presett: unknown key (did you mean 'preset'?"),
+    ({"agnet": {"batch_size": 8}}, "agnet: unknown key (did you mean 'agent'?"),
+    ({"train": {"num_env": 4}}, "train.num_env: unknown key (did you mean 'num_envs'?"),
+])
+def test_a_misspelt_key_gets_a_suggestion(data, message):
+    with pytest.raises(ConfigError) as err:
+        config_from_dict(data)
+    assert str(err.value).startswith(message)
+
+
+def test_the_model_keys_listed_include_preset():
+    with pytest.raises(ConfigError) as err:
+        config_from_dict({"model": {"zzz": 1}})
+    assert "preset" in str(err.value).split("valid keys:")[1] and "did you mean" not in str(err.value)

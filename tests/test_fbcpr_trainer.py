@@ -1,5 +1,6 @@
 """Online trainer on the toy env: exact resume, clean stop on signals, buffer, CLI."""
 import os
+import re
 import shutil
 import signal
 import threading
@@ -216,21 +217,29 @@ def test_noop_resume_changes_nothing_on_disk_and_more_steps_continue(tmp_path):
     cfg_path.write_text(dump_config(tiny_cfg(total_env_steps=80, save_buffer=False)))
     run = tmp_path / "run"
     runner = CliRunner()
-    assert runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--no-progress"]).exit_code == 0
+    first = runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--no-progress"])
+    assert first.exit_code == 0, first.output
+    updates_before = int(re.search(r"([\d,]+) updates", first.output).group(1))
     snapshot = tree(run)
     res = runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--resume", "--steps", "40", "--no-progress"])
     assert res.exit_code == 0 and "nothing to do" in res.output, res.output
     assert tree(run) == snapshot
     res = runner.invoke(app, ["train", str(cfg_path), "--out", str(run), "--resume", "--more-steps", "40",
                               "--no-progress"])
-    assert res.exit_code == 0 and "finished at 120 env steps" in res.output, res.output
+    # no replay buffer in the checkpoint: 40 env steps refill it (said up front), then 40 of learning, as many
+    # updates as the first run made in its 40 env steps after its 40 of warm-up
+    assert res.exit_code == 0 and "finished at 160 env steps" in res.output, res.output
+    said = " ".join(res.output.split())
+    assert "refills an empty buffer for 40 env steps" in said and "then 40 env steps of learning" in said
+    assert said.index("refills") < said.index("finished")
+    assert int(re.search(r"([\d,]+) updates", res.output).group(1)) == 2 * updates_before > 0
     res = runner.invoke(app, ["train", str(cfg_path), "--out", str(tmp_path / "new"), "--more-steps", "40"])
     assert res.exit_code != 0 and "--resume" in res.output
     # the API side: a run with nothing to do does not rewrite its checkpoint
     ckpt = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()
     mtime = (ckpt / "manifest.json").stat().st_mtime_ns
     tr = Trainer(tiny_cfg(total_env_steps=80, save_buffer=False), run, resume=True, progress=False)
-    assert tr.run()["env_steps"] == 120 and (ckpt / "manifest.json").stat().st_mtime_ns == mtime
+    assert tr.run()["env_steps"] == 160 and (ckpt / "manifest.json").stat().st_mtime_ns == mtime
 
 
 def test_sighup_stops_like_sigint(tmp_path):
@@ -417,3 +426,27 @@ def test_cuda_graph_on_the_cpu_is_said_to_be_ignored(tmp_path):
     tr = Trainer(replace(cfg, agent=replace(cfg.agent, cuda_graph=True)), tmp_path / "run", progress=False)
     assert not tr.agent.graphed
     assert "agent.cuda_graph: ignored on cpu" in (tmp_path / "run" / "warnings.txt").read_text()
+
+
+def test_a_log_gets_whole_plain_lines_not_a_cut_bar(tmp_path, capsys):
+    """With the bar asked for but stderr not a terminal (a log, CI), training prints the plain progress lines, with
+    every metric, instead of the bar's last state cut to 80 columns."""
+    tr = Trainer(tiny_cfg(total_env_steps=80), tmp_path, progress=True)
+    assert not tr.progress_enabled
+    tr.run()
+    out, err = capsys.readouterr()
+    lines = [line for line in out.splitlines() if "steps/s" in line]
+    assert lines and lines[-1].startswith("80/80 steps (100.0%)") and "| u " in lines[-1]
+    assert "…" not in out + err and "━" not in err
+
+
+def test_steps_round_up_to_whole_phases_with_a_message(tmp_path):
+    from fbcpr.cli.app import app
+
+    cfg_path = tmp_path / "tiny.yaml"
+    cfg_path.write_text(dump_config(tiny_cfg(warmup_steps=100)))  # phases of 20 env steps (rollout_steps: 20)
+    res = CliRunner().invoke(app, ["train", str(cfg_path), "--out", str(tmp_path / "r"), "--steps", "10"])
+    said = " ".join(res.output.split())
+    assert res.exit_code == 0, res.output
+    assert "10 env steps rounded up to 20" in said and "the run ends at 20" in said
+    assert "finished at 20 env steps" in said and "20/10" not in said

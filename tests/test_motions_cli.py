@@ -156,3 +156,23 @@ def test_synthetic_writes_the_built_in_clips_beside_others_without_a_clash(tmp_p
     assert (tmp_path / "synthetic_walk.npz").read_bytes() == before
     bad = runner.invoke(app, ["motions", "synthetic", "--out", str(tmp_path), "--prefix", "../x"])
     assert bad.exit_code != 0 and "--prefix" in bad.output
+
+
+def test_import_of_a_missing_file_prints_no_table_and_outputs_follow_the_umask(tmp_path, monkeypatch):
+    import os
+
+    monkeypatch.setenv("FBCPR_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "clips"
+    old = os.umask(0o022)
+    try:
+        res = runner.invoke(app, ["motions", "import", str(tmp_path / "nope.bvh"), "--out", str(out)])
+        good = tmp_path / "squat.bvh"
+        good.write_text(_squat_bvh(n=20)[0])
+        ok = runner.invoke(app, ["motions", "import", str(good), "--out", str(out)])
+    finally:
+        os.umask(old)
+    assert res.exit_code == 1 and "nope.bvh" in res.output
+    assert "Imported 0 clip" not in res.output and "┏" not in res.output  # no empty table before the error
+    assert ok.exit_code == 0, ok.output
+    for name in ("import_summary.json", "squat.npz"):
+        assert (out / name).stat().st_mode & 0o777 == 0o644, name  # not mkstemp's 0600

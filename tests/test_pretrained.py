@@ -37,6 +37,8 @@ def test_loads_by_name_and_prompts():
     action = bfm.act(obs, np.broadcast_to(z, (4, bfm.z_dim)))
     assert action.shape == (4, 69) and np.isfinite(action).all() and np.abs(action).max() <= 1.0
     assert BFM.load("pretrained").z_dim == bfm.z_dim
+    default = BFM.load()  # no checkpoint named: the shipped model
+    assert np.array_equal(default.act(obs, np.broadcast_to(z, (4, bfm.z_dim))), action)
 
 
 def test_demo_prompts_the_pretrained_model(tmp_path):
@@ -47,6 +49,14 @@ def test_demo_prompts_the_pretrained_model(tmp_path):
     assert summary["model"] == "pretrained" and summary["training"] is None
     assert set(summary["scores"]) == {"FB-CPR", "zero action", "random action"}
     assert "pretrained model" in summary["verdict"]
+    # what it does well, next to the floors: the walk from standing starts, pushes held, tracking the walk clip
+    prompts = [(row["prompt"], row["metric"]) for row in summary["scores"]["FB-CPR"]]
+    assert prompts == [("reward move-ego-0-2, standing starts", "return"),
+                       ("reward move-ego-0-0, pushed starts", "share held"), ("track walk", "EMD")]
+    verdict = " ".join(summary["verdict"].split())
+    for cannot in ("get up", "jump", "rotate in place", "raise both arms high"):  # said plainly, not shown
+        assert cannot in verdict, cannot
+    assert "\n\n\n" not in res.output  # no runs of blank lines
 
 
 def test_stored_reward_prompts_are_the_ones_its_states_give():

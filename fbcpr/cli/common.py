@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -13,6 +14,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from typer.core import TyperGroup
+
+from fbcpr.core.progress import LineProgress, progress_display
 
 F = TypeVar("F", bound=Callable[..., object])
 
@@ -48,17 +51,18 @@ def _global_options(
 
 
 class HelpGroup(TyperGroup):
-    """A command group whose help shows on/off flags bare (`--resume`), not as if they took a value
-    (typer renders every flag's type, `--resume <bool>`). `ctx` is click's Context, typed Any: the overridden
-    methods take the base class, whose module depends on the typer version (newer ones vendor click)."""
+    """A command group whose help reads like other command-line tools: on/off flags bare (`--resume`, typer renders
+    `--resume <bool>`), arguments in capitals in the usage line (`CKPT CLIP`, not `{ckpt} {clip_path}`) and
+    repeatable options by their item type (`<str>`, not `<list[str]>`). `ctx` is click's Context, typed Any: the
+    overridden methods take the base class, whose module depends on the typer version (newer ones vendor click)."""
 
     def get_params(self, ctx: Any) -> list[Any]:
-        return _bare_flags(super().get_params(ctx))
+        return _tidy_params(super().get_params(ctx), ctx)
 
     def get_command(self, ctx: Any, name: str) -> Any:
         cmd = super().get_command(ctx, name)
         if cmd is not None and not isinstance(cmd, HelpGroup):
-            _bare_flags(cmd.get_params(ctx))
+            _tidy_params(cmd.get_params(ctx), ctx)
         return cmd
 
 
@@ -89,10 +93,47 @@ def checkpoint_sources(arg: str, value: str | Path | None) -> list[tuple[str, Pa
     return found
 
 
-def _bare_flags(params: list[Any]) -> list[Any]:
+#: The help of `--model` and of an optional CKPT argument: every command that runs a model defaults to the shipped one.
+MODEL_HELP = ("Checkpoint directory, training run folder or Hugging Face repo id; 'pretrained' (the default) is the "
+              "model that ships with the package.")
+
+
+def choose_model(positional: str | None, model: str | None) -> str:
+    """The checkpoint a command runs: the optional CKPT argument or `--model` (not two different ones), else the
+    shipped pretrained model."""
+    if positional is not None and model is not None and positional != model:
+        raise typer.BadParameter(f"the model is named twice, {positional!r} and --model {model!r}: give one of them")
+    return model or positional or "pretrained"
+
+
+def model_and(args: list[str], what: str) -> tuple[str | None, str]:
+    """Split `[CKPT] WHAT` positionals: one value is WHAT (the model is the default or --model), two are CKPT and
+    WHAT, so both `fbcpr track clip.npz` and `fbcpr track pretrained clip.npz` read unambiguously."""
+    if len(args) == 1:
+        return None, args[0]
+    if len(args) == 2:
+        return args[0], args[1]
+    raise typer.BadParameter(f"expected [CKPT] {what} (one or two values), got {len(args)}: {' '.join(args)}")
+
+
+_LIST_TYPE = re.compile(r"^<list\[(\w+)\]>$")
+
+
+def _tidy_params(params: list[Any], ctx: Any) -> list[Any]:
     for p in params:
         if getattr(p, "is_flag", False):
             p.metavar = ""
+        elif getattr(p, "param_type_name", "") == "argument":
+            name = p.metavar or p.name.upper()
+            usage = name if p.required else f"[{name}]"
+            usage += "..." if p.nargs != 1 and p.metavar is None else ""
+            p.get_usage_pieces = lambda ctx=None, usage=usage: [usage]
+            if p.nargs != 1:  # a variadic argument: its name says what it takes
+                p.display_type_rich = lambda ctx=None: None
+        elif p.metavar is None and hasattr(p, "display_type"):
+            item = _LIST_TYPE.match(p.display_type(ctx))
+            if item:
+                p.metavar = f"<{item.group(1).lower()}>"
     return params
 
 
@@ -122,14 +163,8 @@ def cli_errors(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
-def progress() -> Progress:
-    """A rich progress bar with count, elapsed and remaining time (on stderr, so stdout stays parseable)."""
-    return Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=err_console,
-        transient=True,
-    )
+def progress() -> Progress | LineProgress:
+    """A rich progress bar with count, elapsed and remaining time on a terminal, plain progress lines in a log (on
+    stderr either way, so stdout stays parseable)."""
+    return progress_display(err_console, TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                            TimeElapsedColumn(), TimeRemainingColumn(), transient=True)

@@ -6,7 +6,12 @@ from pathlib import Path
 
 import typer
 
-from fbcpr.cli.common import cli_errors, console, err_console, given
+from fbcpr.cli.common import MODEL_HELP, choose_model, cli_errors, console, err_console, given
+
+#: `--quick`: a few tasks of each suite, the ones the shipped model does well and poorly, in under a minute.
+QUICK_TASKS = ("move-ego-0-0", "move-ego-0-2", "crouch-0", "jump-2", "t_pose")
+QUICK_CLIPS = 2
+QUICK_EPISODES, QUICK_STEPS = 2, 150
 
 
 class Suite(str, Enum):
@@ -29,9 +34,11 @@ def _load_motions(folder: Path | None):
 @cli_errors
 def eval_command(
     ctx: typer.Context,
-    ckpt: str = typer.Argument(..., help="Checkpoint dir or hub id (FB-CPR is prompted zero-shot; a single-task "
-                                         "agent runs its own task, with imitation metrics when it imitates), or "
-                                         "the floor baselines 'random' or 'zero'."),
+    ckpt: str | None = typer.Argument(None, metavar="CKPT", show_default=False,
+                                      help="The agent (as --model): a checkpoint (FB-CPR is prompted zero-shot; a "
+                                           "single-task agent runs its own task, with imitation metrics when it "
+                                           "imitates), or the floor baselines 'random' or 'zero'. " + MODEL_HELP),
+    model: str | None = typer.Option(None, "--model", help=MODEL_HELP),
     suite: Suite = typer.Option(Suite.all, "--suite", help="Which suite to run."),
     tasks: list[str] | None = typer.Option(None, "--tasks", help="Restrict to these names (reward tasks such as "
                                               "move-ego-0-2, goal poses such as t_pose, clip names); repeatable, "
@@ -45,6 +52,9 @@ def eval_command(
     out: Path = typer.Option(Path("eval_out"), "--out", help="Directory for results.json (rewritten after every "
                              "task, so Ctrl-C keeps what is done) and plots."),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial states (and of the random baseline)."),
+    quick: bool = typer.Option(False, "--quick", help=f"A check in under a minute on 2 CPU cores: "
+                               f"{', '.join(QUICK_TASKS)} and the first {QUICK_CLIPS} clips, {QUICK_EPISODES} "
+                               f"episodes of {QUICK_STEPS} steps (--episodes and --steps still apply)."),
 ) -> None:
     """Evaluate an agent zero-shot on reward tasks, goal poses and motion tracking (paper App. C.3)."""
     from fbcpr.eval.report import print_report
@@ -56,8 +66,15 @@ def eval_command(
         if extra:
             raise typer.BadParameter(f"{', '.join(extra)}: reward and goal episodes only; the tracking suite plays "
                                      "each clip once, from its first frame")
+    ckpt = choose_model(ckpt, model)
     names = [n.strip() for t in tasks or [] for n in t.split(",") if n.strip()] or None
     library = _load_motions(motions)
+    if quick:
+        if names is not None:
+            raise typer.BadParameter("--quick runs its own short list of tasks: give --quick or --tasks, not both")
+        names = [*QUICK_TASKS, *library.names[:QUICK_CLIPS]]
+        episodes = episodes if given(ctx, "episodes") else QUICK_EPISODES
+        steps = steps if given(ctx, "steps") else QUICK_STEPS
     agent = make_agent(ckpt, seed=seed)
     try:
         results = evaluate(agent, suite.value, tasks=names, episodes=episodes, motions=library, out=out, steps=steps,

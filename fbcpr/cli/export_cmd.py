@@ -8,11 +8,12 @@ from pathlib import Path
 
 import typer
 
-from fbcpr.cli.common import checkpoint_sources, cli_errors, console
+from fbcpr.cli.common import checkpoint_sources, cli_errors, console, given
 
 
 @cli_errors
 def export_command(
+    ctx: typer.Context,
     checkpoint: str = typer.Argument(..., help="Checkpoint dir, run dir, 'pretrained' or a Hugging Face repo id."),
     out: Path = typer.Argument(..., help="Folder to write the inference checkpoint into (replaced atomically); "
                                          "never CHECKPOINT itself, a folder inside or around it, or a file."),
@@ -25,8 +26,8 @@ def export_command(
     interpolate_from: str = typer.Option(None, "--interpolate", metavar="BASE",
                                          help="Export (1 - alpha) * BASE + alpha * CHECKPOINT, weight by weight: "
                                               "BASE is the model CHECKPOINT's run continued from (WiSE-FT)."),
-    alpha: float = typer.Option(None, "--alpha",
-                                help="Weight of CHECKPOINT with --interpolate (0: BASE, 1: it; default 0.5)."),
+    alpha: float = typer.Option(0.5, "--alpha", min=0.0, max=1.0,
+                                help="Weight of CHECKPOINT with --interpolate (0: BASE, 1: it)."),
     reward_states_from: list[str] = typer.Option(None, "--reward-states-from", metavar="MODEL",
                                                  help="Take the reward-prompt states from MODEL (e.g. 'pretrained') "
                                                       "instead of CHECKPOINT's own replay states; repeat it to pool "
@@ -45,7 +46,7 @@ def export_command(
     from fbcpr.inference.reward_prompts import infer_reward_prompts
     from humanoid_env.tasks.rewards import TASKS
 
-    if alpha is not None and interpolate_from is None:
+    if given(ctx, "alpha") and interpolate_from is None:
         raise InputError("--alpha: only means something with --interpolate BASE")
     sources = [*checkpoint_sources("the checkpoint to export", checkpoint),
                *checkpoint_sources("--interpolate", interpolate_from)]
@@ -54,7 +55,7 @@ def export_command(
     check_output_folder(out, "OUT", sources)  # before anything is read or written
     bfm = BFM.load(checkpoint)
     if interpolate_from is not None:
-        bfm = interpolate(BFM.load(interpolate_from), bfm, 0.5 if alpha is None else alpha)
+        bfm = interpolate(BFM.load(interpolate_from), bfm, alpha)
     if reward_states_from:
         bfm = with_reward_states(bfm, [BFM.load(src) for src in reward_states_from])
     if store_prompts:

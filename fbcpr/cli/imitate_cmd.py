@@ -71,7 +71,8 @@ def imitation_config(demo: str, reward: str, config: Path | None = None) -> tupl
 def imitate_command(
     demo: str = typer.Argument(..., help="A clip .npz (humanoid), a folder of frames (video, point mass) or a toy "
                                "demonstration name (circle-ccw, ...)."),
-    reward: str = typer.Option(..., "--reward", help=f"Imitation reward: {', '.join(sorted(IMITATION_REWARDS))}."),
+    reward: str = typer.Option(..., "--reward", metavar=f"<{'|'.join(sorted(IMITATION_REWARDS))}>",
+                                help="Imitation reward."),
     out: Path = typer.Option(..., "--out", help="Run directory (checkpoints, metrics.csv)."),
     steps: int | None = typer.Option(None, "--steps", min=1, help="Total env steps (overrides the config's)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Training seed."),

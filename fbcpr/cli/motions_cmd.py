@@ -30,9 +30,12 @@ def _expand(sources: list[Path]) -> list[Path]:
 
 
 def _write_json_atomic(data: dict, path: Path) -> None:
+    from fbcpr.core.checkpoint import umask_permissions
+
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     with os.fdopen(fd, "w") as fh:
         json.dump(data, fh, indent=2)
+    umask_permissions(tmp)
     os.replace(tmp, path)
 
 
@@ -146,7 +149,8 @@ def import_cmd(
     for d in done:
         table.add_row(d["clip"], str(d["frames"]), f"{d['seconds']:.1f}", _clipped_text(d),
                       f"{d['max_foot_penetration_m']:.3f}", f"{d.get('foot_slide_m_s', 0.0):.3f}")
-    console.print(table)
+    if done:  # an empty table before the errors says nothing
+        console.print(table)
     if skeletons:
         console.print(f"skeletons read with their motions, not imported: {', '.join(p.name for p in skeletons)}")
     for f in failed:

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import typer
 from rich.table import Table
 
-from fbcpr.cli.common import cli_errors, console, progress
+from fbcpr.cli.common import MODEL_HELP, choose_model, cli_errors, console, err_console, model_and, progress
 from fbcpr.eval.rollout import Step
 from fbcpr.eval.rollout import rollout as step_through
 
@@ -70,11 +70,11 @@ def rollout(bfm: Any, zs: np.ndarray, seed: int = 0, start: tuple[np.ndarray, np
             if video:
                 frame = env.render()
                 assert frame is not None  # an rgb_array env renders a frame
-                ep.frames.append(frame if ref_frame is None else np.concatenate([frame, ref_frame(t)], axis=1))
+                ep.frames.append(frame if ref_frame is None else side_by_side(frame, ref_frame(t)))
 
         record(obs, info, 0)
         with progress() as bar:
-            task = bar.add_task(label, total=steps)
+            task = bar.add_task(f"{label}, rendering" if video else label, total=steps)
 
             def watch(step: Step) -> bool:
                 ep.actions.append(np.asarray(step.action, dtype=np.float32))
@@ -118,9 +118,15 @@ def caption(frame: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(img)
 
 
+def side_by_side(agent: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """One tracking video frame: the agent left, the reference right, each labelled."""
+    return np.concatenate([caption(agent, "agent"), caption(reference, "reference")], axis=1)
+
+
 def write_frames(ep: Episode, path: Path) -> None:
     from humanoid_env.render import write_video
 
+    err_console.print(f"encoding {len(ep.frames)} frames into {path}", highlight=False)
     write_video(ep.frames, path, fps=30)
     console.print(f"video written to [bold]{path}[/]")
 
@@ -165,13 +171,15 @@ def _diverged_row(ep: Episode) -> list[tuple[str, str]]:
     return [("simulation diverged at step", str(ep.diverged_at))] if ep.diverged_at is not None else []
 
 
-CKPT_HELP = "Checkpoint directory or Hugging Face repo id."
+CKPT_HELP = "The model (as --model; default: the shipped pretrained model). " + MODEL_HELP
+DEVICE = "<cpu|cuda[:i]>"
 VIDEO_HELP = "Write an .mp4 of the rollout here (needs an OpenGL backend)."
 
 
 @cli_errors
 def prompt_command(
-    ckpt: str = typer.Argument(..., help=CKPT_HELP),
+    ckpt: str | None = typer.Argument(None, metavar="CKPT", help=CKPT_HELP, show_default=False),
+    model: str | None = typer.Option(None, "--model", help=MODEL_HELP),
     reward: str | None = typer.Option(None, "--reward", help="Reward task, e.g. jump-2 or move-ego-0-2*raisearms-h-h "
                                          "(`fbcpr tasks` lists them)."),
     goal: str | None = typer.Option(None, "--goal", help="Goal pose name, e.g. t_pose (`fbcpr tasks` lists them)."),
@@ -180,10 +188,11 @@ def prompt_command(
     steps: int = typer.Option(300, "--steps", min=1, help="Episode length in control steps (30 Hz)."),
     video: Path | None = typer.Option(None, "--video", help=VIDEO_HELP),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial state."),
-    method: str | None = typer.Option(None, "--method", help="With --reward: reward inference, weighted (paper, "
-                                         "the default) or regression. With --goal: backward (z = B(g), paper, the "
-                                         "default), states (the goal as a reward on visited states) or mix."),
-    device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
+    method: Literal["weighted", "regression", "backward", "states", "mix"] | None = typer.Option(
+        None, "--method", help="With --reward: reward inference, weighted (paper, the default) or regression. With "
+                               "--goal: backward (z = B(g), paper, the default), states (the goal as a reward on "
+                               "visited states) or mix."),
+    device: str = typer.Option("cpu", "--device", metavar=DEVICE, help="torch device."),
     refine: int = typer.Option(0, "--refine", min=0, help="With --reward or --goal: improve the inferred z by this "
                                "many generations of rollouts (cross-entropy search on the z sphere, weights "
                                "untouched); ~20 s a generation on 2 cores at the defaults. 0: zero-shot."),
@@ -207,7 +216,7 @@ def prompt_command(
         raise typer.BadParameter("--refine applies to --reward and --goal: a clip has no objective to search on")
     if video is not None:
         require_renderer()
-    bfm = _load(ckpt, device)
+    bfm = _load(choose_model(ckpt, model), device)
     clip = None
     if reward is not None:
         z, title = bfm.prompt.reward(reward, method=method or "weighted"), f"reward {reward}"
@@ -238,7 +247,8 @@ def prompt_command(
     elif goal is not None:
         dist = d_smpl(np.stack(ep.obs[1:]), target) if ep.steps else np.full(1, np.inf)
         rows += [("final d_smpl", f"{dist[-1]:.3f}"), ("min d_smpl", f"{dist.min():.3f}"),
-                 ("success (d <= 2)", f"{goal_success(dist):.0f}"), ("proximity", f"{goal_proximity(dist):.3f}")]
+                 ("reached (d <= 2 at any step)", "yes" if goal_success(dist) else "no"),
+                 ("proximity", f"{goal_proximity(dist):.3f}")]
     else:
         assert clip is not None  # loaded above for --imitate
         rows += [("EMD to clip", f"{emd(np.stack(ep.obs), clip.obs):.3f}")]
@@ -252,23 +262,26 @@ def prompt_command(
 
 @cli_errors
 def track_command(
-    ckpt: str = typer.Argument(..., help=CKPT_HELP),
-    clip_path: str = typer.Argument(..., help="Clip .npz (or built-in clip name, e.g. walk) to track from its "
-                                              "first state."),
-    video: Path | None = typer.Option(None, "--video", help=VIDEO_HELP + " Agent left, reference right."),
-    device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
+    args: list[str] = typer.Argument(..., metavar="[CKPT] CLIP", show_default=False,
+                                     help="The clip .npz (or built-in clip name, e.g. walk) to track from its first "
+                                          "state, after an optional CKPT: " + MODEL_HELP),
+    model: str | None = typer.Option(None, "--model", help=MODEL_HELP),
+    video: Path | None = typer.Option(None, "--video", help=VIDEO_HELP + " Agent left, reference right, labelled."),
+    device: str = typer.Option("cpu", "--device", metavar=DEVICE, help="torch device."),
 ) -> None:
     """Track a clip with one z per step and print tracking success (d_smpl <= 0.5 throughout) and EMD.
 
     CKPT is a BFM (z's from ER_FB of the next states) or an NPMP checkpoint (z's from its encoder)."""
     from fbcpr.metrics import d_smpl, emd, tracking_success
 
+    ckpt, clip_path = model_and(args, "CLIP")
+
     if video is not None:
         require_renderer()
     from fbcpr.inference.agents import load_tracker
 
     clip = _load_clip(clip_path)
-    agent = load_tracker(ckpt, device)  # a BFM (ER_FB latents) or an NPMP (its encoder's latents)
+    agent = load_tracker(choose_model(ckpt, model), device)  # a BFM (ER_FB latents) or an NPMP (its encoder's latents)
     zs = agent.track_z(clip)
     ep = rollout(agent, zs, start=(clip.qpos[0], clip.qvel[0]), video=video is not None, reference=clip,
                  label=f"track {clip.name}")
@@ -284,19 +297,22 @@ def track_command(
 
 @cli_errors
 def timeline_command(
-    ckpt: str = typer.Argument(..., help=CKPT_HELP),
-    spec: str = typer.Argument(..., help='Segments "ITEM:SECONDS,..."; ITEM is a reward task, a goal name, a clip '
-                                         '.npz or a built-in clip name, e.g. "move-ego-0-2:4,jump-2:2,sitonground:4".'),
+    args: list[str] = typer.Argument(..., metavar="[CKPT] SPEC", show_default=False,
+                                     help='Segments "ITEM:SECONDS,..." after an optional CKPT; ITEM is a reward task, '
+                                          'a goal name, a clip .npz or a built-in clip name, e.g. '
+                                          '"move-ego-0-2:4,crouch-0:2,sitonground:4". CKPT: ' + MODEL_HELP),
+    model: str | None = typer.Option(None, "--model", help=MODEL_HELP),
     video: Path | None = typer.Option(None, "--video", help=VIDEO_HELP),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial state."),
-    device: str = typer.Option("cpu", "--device", help="torch device, e.g. cpu or cuda."),
+    device: str = typer.Option("cpu", "--device", metavar=DEVICE, help="torch device."),
 ) -> None:
     """Play prompts back to back (walk, then jump, then sit...) and print a per-segment summary."""
     from fbcpr.inference.timeline import Timeline
 
+    ckpt, spec = model_and(args, "SPEC")
     if video is not None:
         require_renderer()
-    bfm = _load(ckpt, device)
+    bfm = _load(choose_model(ckpt, model), device)
     timeline = Timeline.from_string(bfm.prompt, spec)
     ep = rollout(bfm, timeline.z_per_step(), seed=seed, video=video is not None, label="timeline")
     console.print(timeline_table(timeline, ep))

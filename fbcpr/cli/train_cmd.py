@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -18,8 +19,10 @@ def train_command(
     steps: int | None = typer.Option(None, "--steps", min=1, help="Total env steps of the run, counted from 0 "
                                         "(overrides train.total_env_steps); with --resume too."),
     more_steps: int | None = typer.Option(None, "--more-steps", min=1, help="With --resume: train this many env "
-                                             "steps beyond the latest checkpoint."),
-    device: str | None = typer.Option(None, "--device", help="Override train.device (cpu, cuda, auto)."),
+                                             "steps of learning beyond the latest checkpoint (after the refill of "
+                                             "an empty replay buffer, when the checkpoint holds none)."),
+    device: str | None = typer.Option(None, "--device", metavar="<cpu|cuda[:i]|auto>",
+                                       help="Override train.device."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the live progress bar (off: a plain "
                                   "log line every train.log_every env steps)."),
     init_from: str | None = typer.Option(None, "--init-from", help="Warm-start a new run from the weights of a "
@@ -32,7 +35,7 @@ def train_command(
     from fbcpr.core.errors import ConfigError
     from fbcpr.core.paths import check_output_folder
     from fbcpr.nn.distributed import launched_rank
-    from fbcpr.train.trainer import checkpoint_env_steps, resolve_device, train
+    from fbcpr.train.trainer import checkpoint_env_steps, resolve_device, resume_refill_steps, train
 
     config_path = find_config(config)
     cfg = load_config(config_path)
@@ -57,14 +60,25 @@ def train_command(
     if not resume and os.path.lexists(latest):
         raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
     if resume:
-        done = checkpoint_env_steps(run_dir)
-        if more_steps is not None:
-            cfg.train.total_env_steps = done + more_steps
+        done, refill = checkpoint_env_steps(run_dir), resume_refill_steps(run_dir, cfg)
+        if more_steps is not None:  # N steps of learning: after the refill of an empty buffer, if there is one
+            cfg.train.total_env_steps = done + refill + more_steps
+        _whole_phases(cfg, done)
+        if refill and done < cfg.train.total_env_steps and launched_rank() == 0:
+            learn = cfg.train.total_env_steps - done - refill
+            then = (f"then {learn:,} env steps of learning, to {cfg.train.total_env_steps:,} in all" if learn > 0
+                    else f"the run's total, {cfg.train.total_env_steps:,}, comes before any update: --more-steps N "
+                         "trains N steps beyond the refill")
+            console.print(f"resume: {run_dir}'s checkpoint holds no replay buffer (train.save_buffer: false), so the "
+                          f"loaded policy first refills an empty buffer for {refill:,} env steps, with no updates; "
+                          f"{then}", highlight=False)
         if done >= cfg.train.total_env_steps:  # nothing to do: leave the run exactly as it is
             if launched_rank() == 0:
                 console.print(f"nothing to do: {run_dir} is at {done:,} env steps, and the run's total is "
                               f"{cfg.train.total_env_steps:,} (--steps is the total; --more-steps N trains N more)")
             return
+    if not resume:
+        _whole_phases(cfg, 0)
     try:
         summary = train(cfg, run_dir, resume=resume, progress=progress, init_from=init_from)
     except KeyboardInterrupt:  # a second Ctrl-C: the checkpoints on disk are whole (written atomically)
@@ -77,6 +91,23 @@ def train_command(
     if launched_rank() == 0:
         console.print(f"{state} at {summary['env_steps']:,} env steps, {summary['updates']:,} updates; "
                       f"checkpoint: {summary['checkpoint']}")
+
+
+def _whole_phases(cfg: Any, done: int) -> None:
+    """Round the run's total up to whole rollout phases (a run stops only between phases), and say so."""
+    from fbcpr.nn.distributed import launched_rank
+    from fbcpr.train.schedule import phase_steps
+
+    tc = cfg.train
+    if tc.total_env_steps <= done:  # nothing to do, which the command says
+        return
+    phase = phase_steps(tc, 1) * tc.num_envs  # env steps a phase collects, over all processes
+    total = done + -(-(tc.total_env_steps - done) // phase) * phase
+    if total != tc.total_env_steps and launched_rank() == 0:
+        console.print(f"train: {tc.total_env_steps - done:,} env steps rounded up to {total - done:,}, whole rollout "
+                      f"phases of {phase:,} (train.rollout_steps over train.num_envs); the run ends at {total:,}",
+                      highlight=False)
+    tc.total_env_steps = total
 
 
 def register(app: typer.Typer) -> None:

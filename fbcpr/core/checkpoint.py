@@ -132,10 +132,19 @@ def sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def umask_permissions(path: str | Path) -> None:
+    """Give a file the permissions the umask gives a new file (0644 under the usual 022), like every other tool:
+    safetensors and mkstemp create theirs 0600."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(path, 0o666 & ~umask)
+
+
 def write_tensors(path: Path, tensors: dict[str, torch.Tensor], meta: dict[str, Any] | None = None) -> None:
     """Tensors (moved to CPU) and JSON metadata into one safetensors file: no pickle anywhere."""
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
     save_file(tensors, str(path), metadata={_META_KEY: json.dumps(meta or {})})
+    umask_permissions(path)
     with open(path, "rb+") as f:
         os.fsync(f.fileno())
 

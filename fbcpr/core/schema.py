@@ -8,6 +8,7 @@ Defaults are the paper's values (App. C.5, Tables 3, 5-7, 9); `model.preset` pic
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import types
 import typing
@@ -286,7 +287,10 @@ def _build(cls: type, data: Any, prefix: str, sections: dict[str, type] | None =
     unknown = sorted(set(data) - set(names))
     if unknown:
         key = f"{prefix}.{unknown[0]}" if prefix else unknown[0]
-        raise ConfigError(f"{key}: unknown key (valid keys: {', '.join(sorted(names))})")
+        valid = sorted([*names, "preset"] if cls is ModelConfig else names)
+        close = difflib.get_close_matches(unknown[0], valid, n=1)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        raise ConfigError(f"{key}: unknown key ({hint}valid keys: {', '.join(valid)})")
     kwargs = {}
     for name, value in data.items():
         key = f"{prefix}.{name}" if prefix else name

@@ -8,6 +8,7 @@ BFM also is an evaluation Agent (`act`, `z_dim`, `reward_z`, `goal_z`, `track_z`
 """
 from __future__ import annotations
 
+import difflib
 import numbers
 import os
 import re
@@ -87,13 +88,14 @@ class BFM:
     @classmethod
     def load(
         cls,
-        path_or_repo_id: str | Path,
+        path_or_repo_id: str | Path = PRETRAINED_NAME,
         device: str | torch.device = "cpu",
         revision: str | None = None,
         cache_dir: str | Path | None = None,
     ) -> BFM:
-        """Load from a checkpoint directory (a training run directory means its latest checkpoint), or from a
-        Hugging Face repo id (downloaded once into the HF cache; HF_HUB_OFFLINE=1 uses the cache only)."""
+        """Load from a checkpoint directory (a training run directory means its latest checkpoint), `pretrained`
+        (the default: the shipped model, as `BFM.pretrained()`), or a Hugging Face repo id (downloaded once into
+        the HF cache; HF_HUB_OFFLINE=1 uses the cache only)."""
         path = resolve_checkpoint(path_or_repo_id, revision=revision, cache_dir=cache_dir)
         ckpt = load_checkpoint(path, device=device)
         if ckpt.algorithm != "fb_cpr":
@@ -407,7 +409,9 @@ def resolve_checkpoint(src: str | Path, revision: str | None = None, cache_dir: 
         return _latest_in_run(path)
     text = str(src)
     if not _REPO_ID.match(text) or _looks_like_path(text):
-        raise CheckpointError(f"{text}: no such checkpoint directory")
+        close = difflib.get_close_matches(text, [PRETRAINED_NAME], n=1, cutoff=0.75)
+        hint = f"; did you mean {PRETRAINED_NAME!r} (the shipped model)?" if close else ""
+        raise CheckpointError(f"{text}: no such checkpoint directory{hint}")
     folder = Path(_download(text, revision, cache_dir))
     missing = [f for f in (MODEL_FILE, CONFIG_FILE, MANIFEST_FILE) if not (folder / f).is_file()]
     if missing:

@@ -37,6 +37,7 @@ from rich.console import Console
 from rich.progress import Progress
 
 from fbcpr.core.checkpoint import (
+    MANIFEST_FILE,
     REPLAY_FILE,
     CheckpointError,
     discard_checkpoint,
@@ -45,6 +46,7 @@ from fbcpr.core.checkpoint import (
     load_checkpoint,
     load_state_strict,
     prunable_checkpoints,
+    read_manifest,
     read_trainer_meta,
     remove_stale_temporaries,
     save_checkpoint,
@@ -108,7 +110,9 @@ class Trainer:
         check_world_size(cfg, distributed.launched_world_size())
         self.replicas, self.device = distributed.setup(resolve_device(tc.device), tc.dist_timeout_s, tc.dist_backend)
         r = self.replicas
-        self.progress_enabled = progress and r.is_main
+        # the live bar only on a terminal: in a log it would print its last state once, metrics cut to its width,
+        # so a log gets the plain line every train.log_every env steps instead
+        self.progress_enabled = progress and r.is_main and Console(stderr=True).is_terminal
         check_world_size(cfg, r.world_size)
         r.check_replicated({"config": torch.frombuffer(bytearray(config_json(cfg).encode()), dtype=torch.uint8)},
                            "the run config")
@@ -891,6 +895,14 @@ def train(cfg: Config, out_dir: str | Path, resume: bool = False, progress: bool
     if trainer.replicas.is_main:
         (Path(out_dir) / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
+
+
+def resume_refill_steps(run_dir: str | Path, cfg: Config) -> int:
+    """Env steps a resume of `run_dir` spends refilling an empty replay buffer before updates go on: the config's
+    warm-up when the latest checkpoint holds no replay buffer (train.save_buffer: false), else 0."""
+    path = latest_checkpoint(Path(run_dir) / "checkpoints")
+    saved = read_manifest(path / MANIFEST_FILE).get("files", {})
+    return 0 if REPLAY_FILE in saved else cfg.train.warmup_steps
 
 
 def checkpoint_env_steps(run_dir: str | Path) -> int:
