@@ -308,8 +308,10 @@ def test_progress_bar_keeps_steps_rate_and_eta_at_80_columns():
 
 def test_no_progress_prints_plain_log_lines(tmp_path, capsys):
     Trainer(tiny_cfg(log_every=40), tmp_path, progress=False).run(max_env_steps=120)
-    lines = [line for line in capsys.readouterr().out.splitlines() if "steps/s" in line]
+    out, err = capsys.readouterr()
+    lines = [line for line in err.splitlines() if "steps/s" in line]
     assert len(lines) >= 2 and lines[-1].startswith("120/120 steps (100.0%)") and "eta" in lines[-1]
+    assert "steps/s" not in out  # stdout stays the caller's
 
 
 def test_cuda_without_cuda_leaves_no_run_directory(tmp_path):
@@ -435,7 +437,7 @@ def test_a_log_gets_whole_plain_lines_not_a_cut_bar(tmp_path, capsys):
     assert not tr.progress_enabled
     tr.run()
     out, err = capsys.readouterr()
-    lines = [line for line in out.splitlines() if "steps/s" in line]
+    lines = [line for line in err.splitlines() if "steps/s" in line]
     assert lines and lines[-1].startswith("80/80 steps (100.0%)") and "| u " in lines[-1]
     assert "…" not in out + err and "━" not in err
 

@@ -23,6 +23,7 @@ import os
 import random
 import shutil
 import signal
+import sys
 import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping
@@ -831,11 +832,12 @@ class Trainer:
         return " ".join([f"u {self.updates:,}", *parts])
 
     def _log_line(self, total: int, rate: float) -> None:
-        """One plain progress line (for logs and CI, where the live bar is off)."""
+        """One plain progress line (for logs and CI, where the live bar is off), on stderr where the bar would be, so
+        a script's own output on stdout stays its own."""
         left = int((total - self.env_steps) / rate) if rate > 0 else None
         eta = "?" if left is None else f"{left // 3600}:{left % 3600 // 60:02d}:{left % 60:02d}"
         print(f"{self.env_steps:,}/{total:,} steps ({100 * self.env_steps / total:.1f}%) {rate:,.0f} steps/s "
-              f"eta {eta} | {self._metric_text()}", flush=True)
+              f"eta {eta} | {self._metric_text()}", file=sys.stderr, flush=True)
 
     @contextmanager
     def _progress(self, total: int) -> Iterator[tuple[Progress | None, Any]]:
