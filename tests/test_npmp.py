@@ -12,7 +12,7 @@ import torch
 from fbcpr.inference.bfm import BFM
 from fbcpr.core.checkpoint import CheckpointError, latest_checkpoint, load_checkpoint
 from fbcpr.core.config import config_from_dict
-from fbcpr.core.errors import ConfigError
+from fbcpr.core.errors import ConfigError, InputError
 from fbcpr.inference.agents import load_tracker, make_agent
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 from fbcpr.apps.npmp.agent import NPMPAgent
@@ -175,7 +175,7 @@ def test_distill_checkpoints_resume_and_track(bc_data, tmp_path):
     info = {"method": "bc", "expert": "tiny", "action_mapping": "rest", "clips": bc_data.clip_names}
     path, steps = distill(tmp_path, bc_data, cfg, steps=3, info=info, checkpoint_every=2)
     assert steps == 3 and path.name == "step_00000003" and latest_checkpoint(tmp_path / "checkpoints") == path
-    with pytest.raises(FileExistsError, match="--resume"):
+    with pytest.raises(InputError, match="--resume"):
         distill(tmp_path, bc_data, cfg, steps=5, info=info)
     path, steps = distill(tmp_path, bc_data, cfg, steps=5, info=info, resume=True)
     assert steps == 5 and sorted(p.name for p in (tmp_path / "checkpoints").glob("step_*")) == ["step_00000005"]
@@ -186,7 +186,6 @@ def test_distill_checkpoints_resume_and_track(bc_data, tmp_path):
     obs = bc_data.obs[:6].numpy()
     zs = agent.track_z(obs)
     assert zs.shape == (5, 4) and agent.act(obs[0], zs[0]).shape == (69,) and agent.act(obs, zs[0]).shape == (6, 69)
-    from fbcpr.core.errors import InputError
 
     with pytest.raises(InputError, match="z: expected"):
         agent.act(obs, zs[:2])

@@ -12,6 +12,7 @@ import typer
 from rich.table import Table
 
 from fbcpr.cli.common import HelpGroup, cli_errors, console, err_console, progress
+from fbcpr.core.errors import InputError
 
 motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH, ASF/AMC), inspect, render.",
                           no_args_is_help=True,
@@ -46,13 +47,13 @@ def read_joint_map(path: Path) -> dict[str, str]:
     try:
         data = yaml.safe_load(path.read_text())
     except OSError as err:
-        raise FileNotFoundError(f"--joint-map: cannot read {path} ({err.strerror})") from None
+        raise InputError(f"--joint-map: cannot read {path} ({err.strerror})") from None
     except yaml.MarkedYAMLError as err:
         mark = err.problem_mark
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
-        raise ValueError(f"--joint-map: {where}: invalid YAML: {err.problem}") from None
+        raise InputError(f"--joint-map: {where}: invalid YAML: {err.problem}") from None
     if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
-        raise ValueError(f"--joint-map: {path} must map keypoint names to joint names (e.g. `l_toe: toe1-1.L`)")
+        raise InputError(f"--joint-map: {path} must map keypoint names to joint names (e.g. `l_toe: toe1-1.L`)")
     return data
 
 
@@ -112,7 +113,7 @@ def import_cmd(
     skeletons = [p for p in files if p.suffix.lower() == ".asf"]  # read with their motions, not as motions
     files = [p for p in files if p.suffix.lower() != ".asf"]
     if not files:
-        raise ValueError("no input files found")
+        raise InputError("SOURCES: no input files found")
     out.mkdir(parents=True, exist_ok=True)
     done: list[dict] = []
     failed: list[dict] = []
@@ -179,7 +180,7 @@ def synthetic_cmd(
     clips = [replace(c, name=f"{prefix}{c.name}") for c in default_clips()]
     clashes = [c.name for c in clips if (out / f"{c.name}.npz").exists()]
     if clashes:
-        raise FileExistsError(f"{out}: {', '.join(clashes)}.npz already exist; give another --prefix or --out")
+        raise InputError(f"--out: {out}: {', '.join(clashes)}.npz already exist; give another --prefix or --out")
     for clip in clips:
         save_clip(clip, out / f"{clip.name}.npz")
     console.print(f"wrote {len(clips)} clips ({sum(c.seconds for c in clips):.1f} s) to {out}: "
@@ -193,10 +194,10 @@ def info_cmd(folder: Path = typer.Argument(..., help="Folder of clip .npz files.
     from motions.clip import ClipFormatError, load_clip
 
     if not folder.is_dir():
-        raise ValueError(f"{folder} is not a folder")
+        raise InputError(f"{folder} is not a folder")
     paths = sorted(folder.glob("*.npz"))
     if not paths:
-        raise ValueError(f"no .npz clips in {folder}")
+        raise InputError(f"no .npz clips in {folder}")
     table = Table(title=str(folder))
     for col in ("clip", "frames", "seconds", "pelvis z (m)", "source", "license"):
         table.add_column(col, justify="right" if col in ("frames", "seconds", "pelvis z (m)") else "left")

@@ -11,6 +11,7 @@ import typer
 from rich.table import Table
 
 from fbcpr.cli.common import HelpGroup, checkpoint_sources, cli_errors, console, progress
+from fbcpr.core.errors import InputError
 
 app = typer.Typer(help="Neural probabilistic motor primitives distilled from a BFM (NPMP).", no_args_is_help=True,
                   cls=HelpGroup)
@@ -64,12 +65,12 @@ def distill_command(
     overrides = {k: v for k, v in (("latent_dim", latent), ("beta", beta), ("alpha", alpha)) if v is not None}
     cfg = npmp_config({**overrides, "seed": seed}, preset=preset.value)
     if resume and not (out / "checkpoints" / "latest").exists():
-        raise FileNotFoundError(f"--resume: no NPMP checkpoint to resume in {out}")
+        raise InputError(f"--resume: no NPMP checkpoint to resume in {out}")
     data_path = out / DATA_FILE
     if data_path.exists():
         data = ExpertData.load(data_path)
         if data.method != method.value:
-            raise ValueError(f"{data_path} holds {data.method} data, not {method.value}: choose another --out")
+            raise InputError(f"{data_path} holds {data.method} data, not {method.value}: choose another --out")
         console.print(f"expert data: {data_path} ({len(data.obs):,} states, {len(data.episode_clip)} episodes)")
         collect_s = None
     else:
@@ -135,11 +136,11 @@ def eval_command(
     agents: list[NPMPAgent] = []
     for c, agent in zip(ckpts, loaded):
         if not isinstance(agent, NPMPAgent):
-            raise ValueError(f"{c}: not an NPMP checkpoint (`fbcpr eval` scores a BFM)")
+            raise InputError(f"{c}: not an NPMP checkpoint (`fbcpr eval` scores a BFM)")
         agents.append(agent)
     recorded = {str(a.info.get("expert", "pretrained")) for a in agents}
     if expert is None and len(recorded) > 1:
-        raise ValueError(f"the NPMPs were distilled from different experts {sorted(recorded)}: choose one with "
+        raise InputError(f"the NPMPs were distilled from different experts {sorted(recorded)}: choose one with "
                          "--expert")
     expert = expert or recorded.pop()
     library = MotionLibrary.load(motions)

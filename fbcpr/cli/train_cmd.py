@@ -8,6 +8,7 @@ from typing import Any
 import typer
 
 from fbcpr.cli.common import checkpoint_sources, cli_errors, console, err_console
+from fbcpr.core.errors import InputError
 
 
 @cli_errors
@@ -52,13 +53,13 @@ def train_command(
     resolve_device(cfg.train.device)  # fail before anything is written
     run_dir = out if out is not None else Path("runs") / config_path.stem
     if resume and init_from is not None:
-        raise ValueError("--init-from starts a new run; --resume continues one: give only one of them")
+        raise InputError("--init-from starts a new run; --resume continues one: give only one of them")
     check_output_folder(run_dir, "--out", checkpoint_sources("--init-from", init_from))
     latest = run_dir / "checkpoints" / "latest"
     if resume and not os.path.lexists(latest):  # a broken link is read below, which names what is wrong
-        raise FileNotFoundError(f"--resume: no checkpoint to resume in {run_dir}")
+        raise InputError(f"--resume: no checkpoint to resume in {run_dir}")
     if not resume and os.path.lexists(latest):
-        raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
+        raise InputError(f"--out: {run_dir} already holds a run; pass --resume to continue it or choose another --out")
     if resume:
         done, refill = checkpoint_env_steps(run_dir), resume_refill_steps(run_dir, cfg)
         if more_steps is not None:  # N steps of learning: after the refill of an empty buffer, if there is one

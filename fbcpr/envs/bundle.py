@@ -85,9 +85,9 @@ def humanoid_bundle(cfg: EnvConfig, num_envs: int, threads: int | None = None) -
     else:
         path = Path(cfg.motions)
         if not path.exists():
-            raise FileNotFoundError(f"env.motions: {path} does not exist (give a clip .npz, a folder of them or "
-                                    f"'synthetic'; the shipped configs read clips from the data directory, "
-                                    f"${DATA_VAR} or ./data: `fbcpr motions import ... --out {path}` makes them)")
+            raise ConfigError(f"env.motions: {path} does not exist (give a clip .npz, a folder of them or "
+                              f"'synthetic'; the shipped configs read clips from the data directory, "
+                              f"${DATA_VAR} or ./data: `fbcpr motions import ... --out {path}` makes them)")
         lib = MotionLibrary.load([path] if path.is_file() else path)  # one clip: single-demonstration imitation
 
     def task_reward(name: str) -> TaskReward:

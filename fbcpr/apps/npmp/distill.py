@@ -27,6 +27,7 @@ from fbcpr.apps.npmp.config import NPMPConfig
 from fbcpr.apps.npmp.data import ExpertData
 from fbcpr.apps.npmp.model import NPMPModel, kl_to_prior
 from fbcpr.core.checkpoint import CheckpointError, discard_checkpoint, latest_checkpoint, write_pointer
+from fbcpr.core.errors import InputError
 from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.train.trainer import STOP_SIGNALS
 
@@ -38,7 +39,7 @@ class Distiller:
 
     def __init__(self, model: NPMPModel, data: ExpertData) -> None:
         if data.obs.shape[1] != model.obs_dim or data.action.shape[1] != model.action_dim:
-            raise ValueError(f"expert data has obs/action dims {data.obs.shape[1]}/{data.action.shape[1]}, the model "
+            raise InputError(f"expert data has obs/action dims {data.obs.shape[1]}/{data.action.shape[1]}, the model "
                              f"{model.obs_dim}/{model.action_dim}")
         self.model, self.data, self.cfg = model, data, model.cfg
         self.opt = torch.optim.Adam(model.parameters(), lr=self.cfg.lr)
@@ -117,7 +118,7 @@ def distill(out: Path, data: ExpertData, cfg: NPMPConfig, steps: int, info: dict
         info = {k: v for k, v in ckpt.info.items() if k not in ("config", "obs_dim", "action_dim", "metrics", "steps")}
     else:
         if (root / "latest").exists():
-            raise FileExistsError(f"{out} already holds an NPMP run; pass --resume to continue it or choose another "
+            raise InputError(f"--out: {out} already holds an NPMP run; pass --resume to continue it or choose another "
                                   "--out")
         model = NPMPModel(cfg, data.obs.shape[1], data.action.shape[1])
         model.obs_normalizer.update(data.obs)  # fixed statistics of the expert states
