@@ -74,11 +74,22 @@ def test_random_agent_end_to_end_with_outputs(tmp_path, library):
     g = res["goal"]["a_pose"]
     assert 0 <= g["proximity"] <= 1 and g["success"] in (0.0, 0.5, 1.0)
     assert res["tracking"]["stand"]["success"] == 0.0 and res["tracking"]["stand"]["emd"] > 0.5
+    assert res["tracking"]["stand"]["emd_hold_first_pose"] < res["tracking"]["stand"]["emd"]  # random falls
     saved = json.loads((tmp_path / "results.json").read_text())
     assert saved["summary"] == json.loads(json.dumps(res["summary"]))
     for png in ("reward_tasks.png", "reward_categories.png", "goal_proximity.png", "goal_success.png",
                 "tracking_emd.png"):
         assert (tmp_path / png).stat().st_size > 1000
+
+
+def test_tracking_reports_the_hold_the_first_pose_floor():
+    """A clip that stands still is tracked by holding its first pose (EMD near 0); one that moves is not, and a
+    tracker must beat that EMD to track anything the clip does after its first frame."""
+    from fbcpr.eval.runner import hold_first_pose_emd
+    from motions.synthetic import walk
+
+    still, moving = hold_first_pose_emd(stand(2.0)), hold_first_pose_emd(walk(2.0))
+    assert still < 0.1 and moving > 5 * max(still, 0.05)
 
 
 def test_oracle_beats_floor_baselines(library):

@@ -31,7 +31,8 @@ def summarize(results: dict[str, Any]) -> dict[str, Any]:
     if "tracking" in results:
         t = results["tracking"].values()
         summary["tracking"] = {"success": float(np.mean([x["success"] for x in t])),
-                               "emd": float(np.mean([x["emd"] for x in t]))}
+                               "emd": float(np.mean([x["emd"] for x in t])),
+                               "emd_hold_first_pose": float(np.mean([x["emd_hold_first_pose"] for x in t]))}
         summary["tracking"].update({k: float(np.mean([x[k] for x in t])) for k in IMITATION_KEYS
                                     if all(k in x for x in t)})
     return summary
@@ -79,11 +80,13 @@ def print_report(results: dict[str, Any], console: Console | None = None) -> Non
         table.add_row("all", f"{s['success']:.2f}", f"{s['proximity']:.3f}", "")
         con.print(table)
     if "tracking" in results:
-        table = _table(f"Tracking ({results.get('agent', 'agent')})", ("clip", "frames", "success", "EMD"))
+        table = _table(f"Tracking ({results.get('agent', 'agent')})",
+                       ("clip", "frames", "success", "EMD", "EMD holding the first pose"))
         for name, t in results["tracking"].items():
-            table.add_row(name, str(t["frames"]), f"{t['success']:.0f}", f"{t['emd']:.3f}")
+            table.add_row(name, str(t["frames"]), f"{t['success']:.0f}", f"{t['emd']:.3f}",
+                          f"{t['emd_hold_first_pose']:.3f}")
         s = results["summary"]["tracking"]
-        table.add_row("all", "", f"{s['success']:.2f}", f"{s['emd']:.3f}")
+        table.add_row("all", "", f"{s['success']:.2f}", f"{s['emd']:.3f}", f"{s['emd_hold_first_pose']:.3f}")
         con.print(table)
         if "dtw" in s:
             con.print(f"imitation: DTW pose error {s['dtw']:.3f} m, SPARC {s['sparc']:.2f} "

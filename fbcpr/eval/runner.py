@@ -169,6 +169,16 @@ def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np
     return out
 
 
+def hold_first_pose_emd(clip: Any) -> float:
+    """The tracking floor of a body frozen in the clip's first pose (its first qpos, at rest, every step): an EMD
+    no better than this tracks nothing the clip does after its first frame."""
+    from humanoid_env.model import load_model
+    from humanoid_env.observation import observe
+
+    frozen = observe(load_model(), clip.qpos[:1], np.zeros_like(clip.qvel[:1]))
+    return emd(np.repeat(frozen, clip.n_frames, axis=0), clip.obs)
+
+
 def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress | LineProgress, batch: int = 32,
                    num_threads: int | None = None, report: Report | None = None,
                    imitation: bool = False) -> dict[str, Any]:
@@ -214,7 +224,8 @@ def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress | Line
         for i, c in enumerate(group):
             agent_traj = traj[i, :c.n_frames]
             out[c.name] = {"success": float(tracking_success(agent_traj, c.obs) and not dead[i]),
-                           "emd": emd(agent_traj, c.obs), "frames": c.n_frames}
+                           "emd": emd(agent_traj, c.obs), "emd_hold_first_pose": hold_first_pose_emd(c),
+                           "frames": c.n_frames}
             if imitation:
                 out[c.name].update(imitation_scores(agent_traj, c.obs))
             report.result("tracking", c.name, out[c.name])
