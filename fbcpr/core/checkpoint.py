@@ -266,10 +266,7 @@ def save_checkpoint(
     without their observations (rebuilt on load), for checkpoints that ship. `reward_prompts` is the (tensors,
     metadata) pair of `fbcpr.inference.reward_prompts.RewardPrompts.to_tensors`."""
     path = Path(path)
-    check_replaceable(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
-    tmp.mkdir()
+    tmp = staging_dir(path)
     try:
         shapes: dict[str, dict[str, list[int]]] = {}
 
@@ -352,6 +349,16 @@ def check_replaceable(path: Path) -> None:
     if holds and not (path / MANIFEST_FILE).is_file():
         raise CheckpointError(f"{path}: a folder that holds files but no checkpoint (no {MANIFEST_FILE}); a checkpoint "
                               "would replace all of it (choose another path)")
+
+
+def staging_dir(path: Path) -> Path:
+    """A fresh hidden folder beside `path` to write a checkpoint into before `swap_into_place` (refused early, by
+    `check_replaceable`, where no checkpoint may go); `remove_stale_temporaries` finds those a kill left behind."""
+    check_replaceable(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
+    tmp.mkdir()
+    return tmp
 
 
 def swap_into_place(tmp: Path, path: Path) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,11 +19,11 @@ from fbcpr.core.checkpoint import (
     TRAINER_FILE,
     CheckpointError,
     check_recorded_sizes,
-    check_replaceable,
     load_state_strict,
     read_manifest,
     read_tensors,
     seal,
+    staging_dir,
     verify,
     write_tensors,
 )
@@ -60,10 +59,7 @@ def save_npmp(path: str | Path, model: NPMPModel, info: dict[str, Any],
               trainer_state: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None) -> Path:
     """Write a checkpoint directory atomically (the previous one at `path` stays readable until the swap)."""
     path = Path(path)
-    check_replaceable(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
-    tmp.mkdir()
+    tmp = staging_dir(path)
     try:
         write_tensors(tmp / MODEL_FILE, dict(model.state_dict()))
         if trainer_state is not None:
