@@ -175,3 +175,8 @@ def test_a_character_creator_take_with_a_rest_frame_imports():
     assert "rest pose" in src.source
     clip, report = import_file(CMU / "bvh" / "007_03.bvh", use_cache=False)
     assert np.linalg.norm(clip.qpos[-1, :2] - clip.qpos[0, :2]) > 2.0 and report.foot_slide < 0.3
+
+
+def test_a_bone_that_translates_is_refused():
+    with pytest.raises(AsfAmcFormatError, match=r"ASF:\d+: dof 'tx' is not read here"):
+        parse_asf(asf_text().replace("dof rx ry rz", "dof rx ry tx", 1))

@@ -17,10 +17,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from motions.importers.bvh import NAMES as KEYPOINT_NAMES
 from motions.importers.bvh import Y_UP_TO_Z_UP
 from motions.limits import read_text
-from motions.retarget import SourceMotion
+from motions.retarget import KEYPOINTS, SourceMotion
 
 #: Frames per second of an AMC file (the CMU database records at 120 Hz; the format has no field for it).
 AMC_FPS = 120.0
@@ -35,7 +34,8 @@ CMU_BONES = {
     "l_shoulder": "lhumerus", "l_elbow": "lradius", "l_wrist": "lwrist",
     "r_shoulder": "rhumerus", "r_elbow": "rradius", "r_wrist": "rwrist",
 }
-_DOF_AXES = {"rx": "x", "ry": "y", "rz": "z", "tx": "X", "ty": "Y", "tz": "Z", "l": "L"}
+#: The rotation dofs a bone may have (CMU bones have no translation or length dofs).
+ROTATION_DOFS = ("rx", "ry", "rz")
 
 
 class AsfAmcFormatError(ValueError):
@@ -132,9 +132,10 @@ def parse_asf(text: str, where: str = "ASF") -> Skeleton:
                     current["axis"] = _euler(order, _floats(parts[1:4], at, "axis"))
                 elif key == "dof":
                     dof = [p.lower() for p in parts[1:]]
-                    unknown = [d for d in dof if d not in _DOF_AXES]
+                    unknown = [d for d in dof if d not in ROTATION_DOFS]
                     if unknown:
-                        raise AsfAmcFormatError(f"{at}: unknown dof {unknown[0]!r} (rx ry rz tx ty tz l)")
+                        raise AsfAmcFormatError(f"{at}: dof {unknown[0]!r} is not read here (only rotations: rx ry "
+                                                "rz; a bone that translates or stretches would be posed wrong)")
                     current["dof"] = dof
         elif section == "hierarchy" and key not in ("begin", "end"):
             for child in parts[1:]:
@@ -207,10 +208,8 @@ def bone_starts(skeleton: Skeleton, root: np.ndarray, dofs: dict[str, np.ndarray
     starts = {"root": trans}
     for name, bone in skeleton.bones.items():
         motion = np.broadcast_to(np.eye(3), (t, 3, 3))
-        rot_dofs = [d for d in bone.dof if d.startswith("r")]
-        if rot_dofs:
-            values = dofs[name][:, [bone.dof.index(d) for d in rot_dofs]]
-            motion = _euler("".join(_DOF_AXES[d] for d in rot_dofs).upper(), values)
+        if bone.dof:
+            motion = _euler("".join(d[1] for d in bone.dof).upper(), dofs[name])
         rot = world_rot[bone.parent] @ bone.axis @ motion @ bone.axis.T
         world_rot[name] = rot
         starts[name] = ends[bone.parent]
@@ -239,18 +238,18 @@ def load_amc(path: str | Path, skeleton: str | os.PathLike | None = None, up_axi
     path = Path(path)
     if up_axis not in ("y", "z"):
         raise ValueError(f"up_axis must be 'y' or 'z', got {up_axis!r}")
-    unknown = sorted(set(joint_map or {}) - set(KEYPOINT_NAMES))
+    unknown = sorted(set(joint_map or {}) - set(KEYPOINTS))
     if unknown:
-        raise AsfAmcFormatError(f"joint map: unknown keypoint {unknown[0]!r} (keypoints: {', '.join(KEYPOINT_NAMES)})")
+        raise AsfAmcFormatError(f"joint map: unknown keypoint {unknown[0]!r} (keypoints: {', '.join(KEYPOINTS)})")
     asf = Path(skeleton) if skeleton is not None else find_skeleton(path)
     bones = parse_asf(read_text(asf, AsfAmcFormatError), str(asf))
     root, dofs = parse_amc(read_text(path, AsfAmcFormatError), bones, str(path))
     starts = bone_starts(bones, root, dofs)
     names = {**CMU_BONES, **(joint_map or {})}
-    missing = sorted(k for k in KEYPOINT_NAMES if names.get(k) not in starts)
+    missing = sorted(k for k in KEYPOINTS if names.get(k) not in starts)
     if missing:
         raise AsfAmcFormatError(f"{asf}: no bone for {missing[0]} (looked for {names.get(missing[0])!r}); name it "
                                 f"with a joint map, e.g. `{missing[0]}: BoneName`")
-    positions = {k: starts[names[k]] @ (Y_UP_TO_Z_UP.T if up_axis == "y" else np.eye(3)) for k in KEYPOINT_NAMES}
+    positions = {k: starts[names[k]] @ (Y_UP_TO_Z_UP.T if up_axis == "y" else np.eye(3)) for k in KEYPOINTS}
     return SourceMotion(name=path.stem, positions=positions, times=np.arange(len(root)) / fps,
                         source=f"ASF/AMC {asf.name} {path.name}", license="see the license of the source dataset")
