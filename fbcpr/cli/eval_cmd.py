@@ -19,6 +19,7 @@ class Suite(str, Enum):
     goal = "goal"
     tracking = "tracking"
     all = "all"
+    behaviours = "behaviours"
 
 
 def _load_motions(folder: Path | None):
@@ -39,10 +40,12 @@ def eval_command(
                                            "single-task agent runs its own task, with imitation metrics when it "
                                            "imitates), or the floor baselines 'random' or 'zero'. " + MODEL_HELP),
     model: str | None = typer.Option(None, "--model", help=MODEL_HELP),
-    suite: Suite = typer.Option(Suite.all, "--suite", help="Which suite to run."),
+    suite: Suite = typer.Option(Suite.all, "--suite", help="Which suite to run: the paper's reward, goal and "
+                                "tracking suites ('all' runs the three), or 'behaviours': physical checks of what "
+                                "the body does (jump, get up, sit, ...) next to the zero and random floors."),
     tasks: list[str] | None = typer.Option(None, "--tasks", help="Restrict to these names (reward tasks such as "
-                                              "move-ego-0-2, goal poses such as t_pose, clip names); repeatable, "
-                                              "or comma-separated."),
+                                              "move-ego-0-2, goal poses such as t_pose, clip names; with --suite "
+                                              "behaviours, families such as jump); repeatable, or comma-separated."),
     episodes: int = typer.Option(10, "--episodes", min=1, help="Episodes per reward task and goal pose."),
     steps: int = typer.Option(300, "--steps", min=1, help="Steps per reward/goal episode (paper: 300)."),
     motions: Path | None = typer.Option(None, "--motions", help="Folder of clip .npz files: tracked clips and "
@@ -61,6 +64,9 @@ def eval_command(
     from fbcpr.eval.runner import evaluate
     from fbcpr.inference.agents import make_agent
 
+    if suite == Suite.behaviours:
+        _behaviours(ctx, choose_model(ckpt, model), tasks, episodes, steps, out, seed, quick)
+        return
     if suite == Suite.tracking:
         extra = [f"--{n.replace('_', '-')}" for n in ("episodes", "steps", "fall_prob") if given(ctx, n)]
         if extra:
@@ -86,6 +92,41 @@ def eval_command(
         raise typer.Exit(130) from None
     print_report(results, console)
     console.print(f"results and plots written to [bold]{out}[/]")
+
+
+def _behaviours(ctx: typer.Context, ckpt: str, tasks: list[str] | None, episodes: int, steps: int, out: Path,
+                seed: int, quick: bool) -> None:
+    """`--suite behaviours`: the agent and the zero and random floors from the same standing and fall starts."""
+    from fbcpr.eval.behaviours import FAMILIES, check, estimate_env_steps, families, table
+    from fbcpr.inference.agents import make_agent
+
+    extra = [f"--{n.replace('_', '-')}" for n in ("motions", "fall_prob") if given(ctx, n)]
+    if extra:
+        raise typer.BadParameter(f"{', '.join(extra)}: the behaviour checks start from standing and fall states "
+                                 "of their own and track no clips")
+    names = [n.strip() for t in tasks or [] for n in t.split(",") if n.strip()] or None
+    if quick:
+        if names is not None:
+            raise typer.BadParameter("--quick runs every family: give --quick or --tasks, not both")
+        episodes = episodes if given(ctx, "episodes") else QUICK_EPISODES
+        steps = steps if given(ctx, "steps") else QUICK_STEPS
+    fams = families(names)
+    agents = {name: make_agent(name, seed=seed) for name in dict.fromkeys((ckpt, "zero", "random"))}
+    total = sum(estimate_env_steps(fams, episodes, steps, a.z_dim > 0) for a in agents.values())
+    minutes = total * ENV_STEP_S / 60
+    err_console.print(f"checking {len(fams)} of {len(FAMILIES)} behaviour families x 2 starts x {episodes} episodes "
+                      f"x {steps} steps for {', '.join(agents)}: {total:,} env steps, about "
+                      f"{max(1, round(minutes))} minute{'s' if minutes >= 1.5 else ''} on 2 CPU cores", highlight=False)
+    results = check(agents, names, episodes=episodes, steps=steps, seed=seed, out=out)
+    console.print(table(results))
+    sheets = results.get("sheets")
+    console.print(f"results in [bold]{out / 'behaviours.json'}[/]" + (f", contact sheets in [bold]{out / 'behaviours'}"
+                                                                     "[/]" if isinstance(sheets, list) else
+                                                                     f" ({sheets})"))
+
+
+#: seconds per env step of the behaviour checks on 2 CPU cores (the model's prompts batched: 1.1 ms measured)
+ENV_STEP_S = 0.0012
 
 
 def register(app: typer.Typer) -> None:

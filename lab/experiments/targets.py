@@ -7,7 +7,9 @@ and episodes, and prints each measure with its target:
 - `move-ego-0-2` return of 300 (target >= 100);
 - reward tasks on which the model beats both floors (target: 40 of the paper's 45; our registry has more);
 - goal success, mean over the named poses (target >= 0.3);
-- tracking EMD, mean over the training clips (target <= 3).
+- tracking EMD, mean over the training clips (target <= 3);
+- the behaviour families of `fbcpr eval --suite behaviours` (physical checks: get up, jump with flight, sit, hands
+  above the head, run, ...; target: 9 of 11 passed), with the same episodes and seed.
 
     python lab/experiments/targets.py pretrained --motions data/clips/deepmimic --episodes 4 --out runs/targets.json
 
@@ -25,11 +27,13 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from rich.console import Console
 
-from fbcpr.inference.agents import make_agent
+from fbcpr.eval.behaviours import check, table
 from fbcpr.eval.report import json_safe
 from fbcpr.eval.runner import EPISODE_STEPS, evaluate
 from fbcpr.eval.upright import upright
+from fbcpr.inference.agents import make_agent
 
 
 def measure(spec: str, motions: Any, episodes: int, steps: int, seed: int,
@@ -89,8 +93,12 @@ def main() -> None:
         print(f"{label:54s} {rows['zero'][key]:8.2f} {rows['random'][key]:8.2f} {value:8.2f} {op}{target:6g}  "
               f"{'yes' if met else 'no'}")
     print(f"tasks beating both floors: {', '.join(sorted(wins)) or 'none'}")
+    behaviours = check({name: make_agent(name, seed=args.seed) for name in (args.agent, "zero", "random")},
+                       episodes=max(args.episodes, 8), steps=args.steps, seed=args.seed, show_progress=False,
+                       num_threads=args.threads)
+    Console().print(table(behaviours))
     if args.out:
-        args.out.write_text(json.dumps(json_safe({**rows, "settings": settings}), indent=1))
+        args.out.write_text(json.dumps(json_safe({**rows, "settings": settings, "behaviours": behaviours}), indent=1))
 
 
 if __name__ == "__main__":

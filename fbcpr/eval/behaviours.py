@@ -1,0 +1,480 @@
+"""Behaviour checks: does the body do what the prompt names? A task's reward can be earned without the behaviour
+(bobbing scores on a jump task), so each family here is judged by a physical test of the body, read off the
+observations and independent of the task's reward, next to the zero-action and random floors.
+
+Every family is prompted with one reward task (the goal family with each named pose) and run from standing
+starts and from fall starts, the same starts for every agent. A family passes when at least half the episodes
+from the start its rule names meet the rule. The floors ignore z, so their episodes from one start are shared by
+every family.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fbcpr.core.errors import InputError
+from fbcpr.eval.agents import action_mapping
+from fbcpr.eval.rollout import Step, rollout
+from fbcpr.metrics import GOAL_BETA, d_smpl, goal_proximity, goal_success
+from humanoid_env.model import CONTROL_HZ
+from humanoid_env.tasks.features import Features
+
+STARTS = ("standing", "fall")
+PASS_SHARE = 0.5
+#: envs stepped together: bounds the memory of the recorded observations (~40 MB at 300 steps)
+CHUNK = 96
+STANDING, FALLEN = 0.8, 0.6
+FLIGHT_CLEARANCE, JUMP_GAIN = 0.05, 0.15
+FEET = ("L_Ankle", "L_Toe", "R_Ankle", "R_Toe")
+
+
+class Trace:
+    """Body quantities of recorded episodes, obs (T, E, 358), as (T, E, ...) arrays."""
+
+    def __init__(self, obs: np.ndarray) -> None:
+        self.shape = obs.shape[:2]
+        self.f = Features(obs.reshape(-1, obs.shape[-1]))
+
+    def _back(self, flat: np.ndarray) -> np.ndarray:
+        return flat.reshape(*self.shape, *flat.shape[1:])
+
+    def z(self, body: str) -> np.ndarray:
+        return self._back(self.f.z(body))
+
+    def axis_x(self, body: str) -> np.ndarray:
+        return self._back(self.f.axis_x(body))
+
+    def com_vel(self) -> np.ndarray:
+        return self._back(self.f.com_vel)
+
+    def yaw_rate(self) -> np.ndarray:
+        """Pelvis angular velocity about the world vertical (the heading frame keeps z)."""
+        return self._back(self.f.angvel("Pelvis")[:, 2])
+
+
+@lru_cache(maxsize=1)
+def standing_heights() -> dict[str, float]:
+    """Body heights of the rest standing pose: the reference a jump's apex and flight are measured from."""
+    from humanoid_env.inits import DefaultInit
+    from humanoid_env.model import load_model
+    from humanoid_env.observation import observe
+
+    qpos, qvel = DefaultInit(0.0, 0.0).sample(np.random.default_rng(0), 1)
+    f = Features(observe(load_model(), qpos, qvel).reshape(1, -1))
+    return {b: float(f.z(b)[0]) for b in ("Pelvis", "Head", *FEET)}
+
+
+def _last(x: np.ndarray, seconds: float) -> np.ndarray:
+    return x[-max(1, round(seconds * CONTROL_HZ)):]
+
+
+def _half(x: np.ndarray) -> np.ndarray:
+    return x[len(x) // 2:]
+
+
+Judge = Callable[[Trace], tuple[np.ndarray, dict[str, np.ndarray]]]
+
+
+def _stand(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    pelvis, v = _half(tr.z("Pelvis")), _half(tr.com_vel())
+    speed = np.hypot(v[..., 0], v[..., 1]).mean(0)
+    return (pelvis > STANDING).all(0) & (speed < 0.3), {"speed": speed, "min_pelvis": pelvis.min(0)}
+
+
+def _move(angle: float, speed: float) -> Judge:
+    def judge(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        chest = _half(tr.axis_x("Chest"))[..., :2]
+        a = np.arctan2(chest[..., 1], chest[..., 0]) + np.deg2rad(angle)
+        v = _half(tr.com_vel())[..., :2]
+        along = (v[..., 0] * np.cos(a) + v[..., 1] * np.sin(a)).mean(0)
+        across = (-v[..., 0] * np.sin(a) + v[..., 1] * np.cos(a)).mean(0)
+        heading = np.degrees(np.abs(np.arctan2(across, along)))
+        up = (_half(tr.z("Pelvis")) > FALLEN).all(0)
+        ok = up & (along >= 0.75 * speed) & (along <= 1.5 * speed) & (heading <= 30.0)
+        return ok, {"speed": along, "heading_error_deg": heading}
+    return judge
+
+
+def _jump(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    rest = standing_heights()
+    settled = slice(CONTROL_HZ, None)  # a fall start drops from up to 1 m: that is not a jump
+    flight = np.all([tr.z(b)[settled] > rest[b] + FLIGHT_CLEARANCE for b in FEET], axis=0)  # (T, E)
+    gain = tr.z("Pelvis")[settled].max(0) - rest["Pelvis"]
+    return flight.any(0) & (gain >= JUMP_GAIN), {"apex_gain": gain, "flight_steps": flight.sum(0).astype(float)}
+
+
+def _sit(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    pelvis, head = _last(tr.z("Pelvis"), 1.0), _last(tr.z("Head"), 1.0)
+    knee = np.minimum(_last(tr.z("L_Knee"), 1.0), _last(tr.z("R_Knee"), 1.0))
+    seated = (pelvis < 0.5) & ((pelvis < 0.25) | (knee < 0.15)) & (head - pelvis > 0.35)
+    return seated.all(0), {"pelvis": pelvis.mean(0), "torso_rise": (head - pelvis).mean(0)}
+
+
+def _lie_up(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    pelvis, head = _last(tr.z("Pelvis"), 1.0), _last(tr.z("Head"), 1.0)
+    face = _last(tr.axis_x("Chest")[..., 2], 1.0)
+    lying = np.asarray(((pelvis < 0.3) & (head < 0.35) & (face > 0.7)).all(0))
+    return lying, {"pelvis": pelvis.mean(0), "chest_up": face.mean(0)}
+
+
+def _get_up(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    pelvis = _last(tr.z("Pelvis"), 1.0)
+    return np.asarray((pelvis > STANDING).all(0)), {"pelvis": pelvis.mean(0)}
+
+
+def _crouch(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    pelvis, head = _last(tr.z("Pelvis"), 1.0), _last(tr.z("Head"), 1.0)
+    ankles = np.maximum(_last(tr.z("L_Ankle"), 1.0), _last(tr.z("R_Ankle"), 1.0))
+    knees = np.minimum(_last(tr.z("L_Knee"), 1.0), _last(tr.z("R_Knee"), 1.0))
+    ok = (pelvis > 0.3) & (pelvis < 0.7) & (ankles < 0.2) & (knees > 0.2) & (head - pelvis > 0.35)
+    return ok.all(0), {"pelvis": pelvis.mean(0)}
+
+
+def _hands_up(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    head, pelvis = _last(tr.z("Head"), 1.0), _last(tr.z("Pelvis"), 1.0)
+    lower = np.minimum(_last(tr.z("L_Wrist"), 1.0), _last(tr.z("R_Wrist"), 1.0)) - head
+    return ((lower > 0.05) & (pelvis > STANDING)).all(0), {"lower_wrist_over_head": lower.mean(0)}
+
+
+def _spin(rate: float) -> Judge:
+    def judge(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        w = np.sign(rate) * _half(tr.yaw_rate()).mean(0)
+        up = (_half(tr.z("Pelvis")) > FALLEN).all(0)
+        return up & (w >= 0.5 * abs(rate)), {"yaw_rate": w}
+    return judge
+
+
+@dataclass(frozen=True)
+class Family:
+    """One behaviour: the prompt it is asked with, the start its pass rule reads, the rule in words and as code."""
+
+    name: str
+    prompt: str
+    start: str
+    rule: str
+    judge: Judge | None = field(default=None, compare=False)
+    need: float = PASS_SHARE
+
+
+FAMILIES: tuple[Family, ...] = (
+    Family("stand", "move-ego-0-0", "standing", "pelvis > 0.8 m and mean speed < 0.3 m/s over the last 5 s", _stand),
+    Family("walk", "move-ego-0-2", "standing", "1.5-3 m/s along the prompted direction, heading error <= 30 deg, "
+           "pelvis > 0.6 m, over the last 5 s", _move(0.0, 2.0)),
+    Family("run", "move-ego-0-4", "standing", "3-6 m/s along the prompted direction, heading error <= 30 deg, "
+           "pelvis > 0.6 m, over the last 5 s", _move(0.0, 4.0)),
+    Family("jump", "jump-2", "standing", f"a flight phase (every foot {FLIGHT_CLEARANCE:g} m above its standing "
+           f"height) and the pelvis {JUMP_GAIN:g} m above standing, after the first second", _jump),
+    Family("sit", "sitonground", "standing", "over the last second: pelvis < 0.5 m on the knees or the seat, "
+           "head 0.35 m above the pelvis", _sit),
+    Family("lie_face_up", "lieonground-up", "standing", "over the last second: pelvis < 0.3 m, head < 0.35 m, "
+           "chest facing up", _lie_up),
+    Family("get_up", "move-ego-0-0", "fall", "pelvis > 0.8 m over the last second", _get_up),
+    Family("crouch", "crouch-0", "standing", "over the last second: pelvis 0.3-0.7 m, feet down, knees up, "
+           "torso upright", _crouch),
+    Family("hands_up", "raisearms-h-h", "standing", "over the last second: both wrists 0.05 m above the head, "
+           "pelvis > 0.8 m", _hands_up),
+    Family("spin", "rotate-z-5-0.8", "standing", "at least 2.5 rad/s about the vertical over the last 5 s, "
+           "pelvis > 0.6 m", _spin(5.0)),
+    Family("goal_poses", "goals", "standing", f"the paper's success (d <= {GOAL_BETA:g} at some step), mean over "
+           "the named poses, >= 0.3", need=0.3),
+)
+FAMILY_NAMES = tuple(f.name for f in FAMILIES)
+
+
+def families(names: Sequence[str] | None = None) -> list[Family]:
+    """The families to run, in table order; an unknown name is an error that lists the known ones."""
+    if not names:
+        return list(FAMILIES)
+    unknown = [n for n in names if n not in FAMILY_NAMES]
+    if unknown:
+        raise InputError(f"unknown behaviour famil{'ies' if len(unknown) > 1 else 'y'} {', '.join(unknown)}: "
+                         f"choose from {', '.join(FAMILY_NAMES)}")
+    return [f for f in FAMILIES if f.name in names]
+
+
+def start_states(episodes: int, seed: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The standing and the fall starts every agent and family sees (fall starts drawn with seed + 1)."""
+    from humanoid_env.inits import DefaultInit, FallInit
+
+    return {"standing": DefaultInit().sample(np.random.default_rng(seed), episodes),
+            "fall": FallInit().sample(np.random.default_rng(seed + 1), episodes)}
+
+
+@dataclass
+class Batch:
+    """Episodes to roll out together: one z and one start state per env."""
+
+    z: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+
+
+#: what a batch's watcher gets after each step t (t = -1: the start): the slice of envs, their obs and qpos
+Watch = Callable[[int, slice, np.ndarray, np.ndarray], None]
+
+
+def run_batch(agent: Any, batch: Batch, steps: int, on_obs: Watch, advance: Callable[[int], None] = lambda n: None,
+              num_threads: int | None = None) -> None:
+    """Roll out every env of `batch` for `steps` steps, `CHUNK` envs at a time (bounds the memory of the env);
+    `advance(n)` hears of the env steps done."""
+    from humanoid_env.vector import VectorHumanoidEnv
+
+    n = len(batch.qpos)
+    for lo in range(0, n, CHUNK):
+        envs = slice(lo, min(n, lo + CHUNK))
+        env = VectorHumanoidEnv(envs.stop - lo, max_episode_steps=steps + 1, num_threads=num_threads,
+                                action_mapping=action_mapping(agent))
+        try:
+            obs, _ = env.reset(options={"qpos": batch.qpos[envs], "qvel": batch.qvel[envs]})
+            on_obs(-1, envs, obs, batch.qpos[envs])
+            z = batch.z[envs]
+
+            def act(t: int, o: np.ndarray, z: np.ndarray = z) -> np.ndarray:
+                return np.asarray(agent.act(o, z, mean=True), np.float32)
+
+            def watch(step: Step, envs: slice = envs) -> None:
+                on_obs(step.t, envs, step.info["final_obs"], step.info["final_qpos"])
+                advance(envs.stop - envs.start)
+
+            rollout(env, obs, act, steps, watch)
+        finally:
+            env.close()
+
+
+def _prompts(agent: Any, fams: Sequence[Family]) -> dict[str, np.ndarray]:
+    """Each family's z (each goal pose's, keyed "goal:NAME", for the goal family); a floor has one empty z, keyed
+    "", for everything."""
+    from humanoid_env.tasks import GOALS, goal_obs
+
+    if agent.z_dim == 0:
+        return {"": np.zeros(0, np.float32)}
+    out: dict[str, np.ndarray] = {}
+    for f in fams:
+        if f.judge is None:
+            out.update({f"goal:{g}": np.asarray(agent.goal_z(goal_obs(g)), np.float32) for g in GOALS})
+        else:
+            out[f.prompt] = np.asarray(agent.reward_z(f.prompt), np.float32)
+    return out
+
+
+@dataclass
+class AgentRun:
+    """What one agent did, per (prompt key, start): observations (T+1, E, 358) of the behaviour prompts, distances
+    (E, T) to each goal pose, and episode 0's body states (T+1, nq) for pictures."""
+
+    obs: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
+    dist: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
+    qpos0: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
+
+    def find(self, table: dict[tuple[str, str], np.ndarray], prompt: str, start: str) -> np.ndarray:
+        """A floor ran one prompt ("") for every family."""
+        return table[(prompt, start)] if (prompt, start) in table else table[("", start)]
+
+
+def run_agent(agent: Any, fams: Sequence[Family], starts: dict[str, tuple[np.ndarray, np.ndarray]], steps: int,
+              advance: Callable[[int], None] = lambda n: None, num_threads: int | None = None) -> AgentRun:
+    """Every (prompt, start) of `fams` for `agent`, all episodes in one batch; a goal pose's episodes keep only
+    their distance to the pose."""
+    from humanoid_env.model import NQ
+    from humanoid_env.observation import OBS_DIM
+    from humanoid_env.tasks import goal_obs
+
+    zs = _prompts(agent, fams)
+    keys = [(p, s) for p in zs for s in starts]
+    episodes = len(starts["standing"][0])
+    n = len(keys) * episodes
+    batch = Batch(z=np.concatenate([np.repeat(zs[p][None], episodes, 0) for p, _ in keys]),
+                  qpos=np.concatenate([starts[s][0] for _, s in keys]),
+                  qvel=np.concatenate([starts[s][1] for _, s in keys]))
+    goal_env = np.array([p.startswith("goal:") for p, _ in keys]).repeat(episodes)
+    slot = np.where(goal_env, np.cumsum(goal_env) - 1, np.cumsum(~goal_env) - 1)  # index among its own kind
+    targets = np.stack([goal_obs(p[5:]) for p, _ in keys if p.startswith("goal:")]).repeat(episodes, 0) \
+        if goal_env.any() else np.zeros((0, OBS_DIM), np.float32)
+    obs = np.empty((steps + 1, int((~goal_env).sum()), OBS_DIM), np.float32)
+    dist = np.empty((steps + 1, int(goal_env.sum())), np.float32)
+    first = np.arange(0, n, episodes)
+    qpos0 = np.empty((steps + 1, len(keys), NQ))
+
+    def keep(t: int, envs: slice, o: np.ndarray, q: np.ndarray) -> None:
+        goal, idx = goal_env[envs], slot[envs]
+        obs[t + 1, idx[~goal]] = o[~goal]
+        dist[t + 1, idx[goal]] = d_smpl(o[goal], targets[idx[goal]])
+        here = first[(first >= envs.start) & (first < envs.stop)]
+        qpos0[t + 1, here // episodes] = q[here - envs.start]
+
+    run_batch(agent, batch, steps, keep, advance, num_threads)
+    out = AgentRun()
+    for i, key in enumerate(keys):
+        rows = slot[i * episodes:(i + 1) * episodes]
+        if key[0].startswith("goal:"):
+            out.dist[key] = dist[1:, rows].T
+        else:
+            out.obs[key] = obs[:, rows]
+        out.qpos0[key] = qpos0[:, i]
+    return out
+
+
+def judge_family(f: Family, run: AgentRun, start: str) -> dict[str, Any]:
+    """Pass share and mean measures of one family from one start, for one agent's run."""
+    from humanoid_env.tasks import GOALS, goal_obs
+
+    if f.judge is not None:
+        ok, measures = f.judge(Trace(run.find(run.obs, f.prompt, start)))
+        return {"pass": float(ok.mean()), **{k: float(np.mean(v)) for k, v in measures.items()}}
+    poses = {}
+    for g in GOALS:
+        key = (f"goal:{g}", start)
+        dist = run.dist[key] if key in run.dist else d_smpl(run.obs[("", start)][1:], goal_obs(g)).T
+        poses[g] = {"success": float(goal_success(dist).mean()), "proximity": float(goal_proximity(dist).mean()),
+                    "final_distance": float(dist[:, -1].mean())}
+    success = float(np.mean([p["success"] for p in poses.values()]))
+    return {"pass": success, "success": success, "proximity": float(np.mean([p["proximity"] for p in poses.values()])),
+            "final_distance": float(np.mean([p["final_distance"] for p in poses.values()])), "poses": poses}
+
+
+def estimate_env_steps(fams: Sequence[Family], episodes: int, steps: int, model: bool) -> int:
+    """Env steps one agent simulates: every prompt from both starts (a floor: one prompt for all)."""
+    from humanoid_env.tasks import GOALS
+
+    prompts = sum(len(GOALS) if f.name == "goal_poses" else 1 for f in fams) if model else 1
+    return prompts * len(STARTS) * episodes * steps
+
+
+def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: int = 8, steps: int = 300,
+          seed: int = 0, out: Path | None = None, show_progress: bool = True,
+          num_threads: int | None = None) -> dict[str, Any]:
+    """Run the behaviour families for each agent (the first is the one judged; the others, usually the zero and
+    random floors, stand beside it) from the same starts, and with `out` write behaviours.json and one contact
+    sheet per family there."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from fbcpr.core.progress import progress_display
+
+    fams = families(names)
+    if episodes < 1:
+        raise InputError(f"episodes must be >= 1, got {episodes}")
+    if steps < MIN_STEPS:
+        raise InputError(f"steps must be >= {MIN_STEPS} ({MIN_STEPS // CONTROL_HZ} s): the checks read the last "
+                         f"half of an episode and its last second; got {steps}")
+    starts = start_states(episodes, seed)
+    columns = (TextColumn("{task.description:>8}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TextColumn("eta"), TimeRemainingColumn())
+    runs: dict[str, AgentRun] = {}
+    with progress_display(Console(stderr=True), *columns, disable=not show_progress) as progress:
+        for name, agent in agents.items():
+            bar = progress.add_task(name, total=estimate_env_steps(fams, episodes, steps, agent.z_dim > 0))
+
+            def advance(k: int, bar: Any = bar) -> None:
+                progress.advance(bar, k)
+
+            runs[name] = run_agent(agent, fams, starts, steps, advance, num_threads)
+    judged = next(iter(agents))
+    results: dict[str, Any] = {"agent": judged, "episodes": episodes, "steps": steps, "seed": seed, "families": {}}
+    for f in fams:
+        per_agent = {name: {s: judge_family(f, run, s) for s in STARTS} for name, run in runs.items()}
+        results["families"][f.name] = {"prompt": f.prompt, "start": f.start, "rule": f.rule, "need": f.need,
+                                       "agents": per_agent, "passed": per_agent[judged][f.start]["pass"] >= f.need}
+    passed = [n for n, e in results["families"].items() if e["passed"]]
+    results["summary"] = {"passed": passed, "families_passed": len(passed), "of": len(fams)}
+    if out is not None:
+        results["sheets"] = write_sheets(fams, runs, out)
+        write_json(results, out, "behaviours.json")
+    return results
+
+
+MIN_STEPS = 2 * CONTROL_HZ
+#: goal poses shown on the goal family's contact sheet (one row each for the judged agent)
+SHEET_POSES = ("t_pose", "hands_up", "kneel_both", "lie_back")
+TILE = (224, 168)
+
+
+def write_sheets(fams: Sequence[Family], runs: dict[str, AgentRun], out: Path, frames: int = 7) -> list[str] | str:
+    """One PNG per family: a row per agent (the goal family: a row per pose in `SHEET_POSES` for the judged
+    agent, then the floors), episode 0 from the family's own start, `frames` frames from start to end. Without an
+    OpenGL renderer, says why instead."""
+    import mujoco
+    from PIL import Image, ImageDraw
+
+    from humanoid_env.model import load_model
+    from humanoid_env.render import TrackRenderer
+
+    model = load_model()
+    try:
+        renderer = TrackRenderer(model, TILE[1], TILE[0])
+    except RuntimeError as err:
+        return f"no contact sheets: {err}"
+    data = mujoco.MjData(model)
+    folder = out / "behaviours"
+    folder.mkdir(parents=True, exist_ok=True)
+    judged = next(iter(runs))
+    written = []
+    try:
+        for f in fams:
+            rows = []
+            for name, run in runs.items():
+                prompts = [f"goal:{g}" for g in SHEET_POSES] if f.judge is None and name == judged else [f.prompt]
+                for p in prompts:
+                    key = (p, f.start) if (p, f.start) in run.qpos0 else ("", f.start)
+                    label = f"{name}: {p if name == judged else 'floor'}, {f.start} start"
+                    rows.append((label, run.qpos0[key]))
+            sheet = Image.new("RGB", (TILE[0] * frames, (TILE[1] + 18) * len(rows)), (20, 20, 20))
+            draw = ImageDraw.Draw(sheet)
+            for r, (label, qpos) in enumerate(rows):
+                y = r * (TILE[1] + 18)
+                draw.text((4, y + 2), label, fill=(255, 255, 255))
+                for c, t in enumerate(np.linspace(0, len(qpos) - 1, frames).round().astype(int)):
+                    data.qpos[:] = qpos[t]
+                    tile = Image.fromarray(renderer.render(data))
+                    ImageDraw.Draw(tile).text((4, 4), f"{t / CONTROL_HZ:.1f} s  pelvis {qpos[t, 2]:.2f} m",
+                                              fill=(255, 255, 0))
+                    sheet.paste(tile, (c * TILE[0], y + 18))
+            path = folder / f"{f.name}.png"
+            sheet.save(path)
+            written.append(str(path))
+    finally:
+        renderer.close()
+    return written
+
+
+def write_json(results: dict[str, Any], out: Path, name: str) -> Path:
+    """`name` under `out`, replaced atomically."""
+    import json
+
+    from fbcpr.eval.report import json_safe
+
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / name
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(json_safe(results), indent=2, allow_nan=False))
+    tmp.replace(path)
+    return path
+
+
+def table(results: dict[str, Any]) -> Any:
+    """A rich table: each family's pass share from its own start for every agent, the other start beside it."""
+    from rich.table import Table
+
+    agents = list(next(iter(results["families"].values()))["agents"])
+    t = Table(title=f"behaviour checks: {results['episodes']} episodes of {results['steps'] / CONTROL_HZ:g} s, "
+                    f"seed {results['seed']}")
+    t.add_column("family")
+    t.add_column("start")
+    for a in agents:
+        t.add_column(a, justify="right")
+    t.add_column("other start", justify="right")
+    t.add_column("passed")
+    for name, e in results["families"].items():
+        other = next(s for s in STARTS if s != e["start"])
+        cells = [f"{e['agents'][a][e['start']]['pass']:.2f}" for a in agents]
+        t.add_row(name, e["start"], *cells, f"{e['agents'][agents[0]][other]['pass']:.2f}",
+                  "[green]yes[/]" if e["passed"] else "[red]no[/]")
+    s = results["summary"]
+    t.caption = f"{agents[0]} passes {s['families_passed']} of {s['of']} families (a family needs 0.5 of its " \
+                f"episodes, the goal poses 0.3 mean success)"
+    return t

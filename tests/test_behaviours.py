@@ -1,0 +1,130 @@
+"""Behaviour checks: each family's rule read off bodies we know (named poses held still, a pose lifted into the
+air, a body carried at a set velocity), the floors run through the real rollouts, and the CLI."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from fbcpr.cli.app import app
+from fbcpr.core.errors import InputError
+from fbcpr.eval import behaviours as B
+from fbcpr.eval.agents import ZeroAgent
+from humanoid_env.model import CONTROL_HZ, NV, load_model
+from humanoid_env.observation import observe
+from humanoid_env.tasks.goals import goal_qpos
+
+T = 3 * CONTROL_HZ
+
+
+def held(qpos: np.ndarray, qvel: np.ndarray | None = None, steps: int = T) -> B.Trace:
+    """One episode of a body held in `qpos` (moving at `qvel`) for `steps` steps."""
+    qv = np.zeros((steps, NV)) if qvel is None else np.tile(qvel, (steps, 1))
+    obs = observe(load_model(), np.tile(qpos, (steps, 1)), qv).astype(np.float32)
+    return B.Trace(obs[:, None])
+
+
+def passes(family: str, trace: B.Trace) -> bool:
+    judge = {f.name: f.judge for f in B.FAMILIES}[family]
+    assert judge is not None
+    ok, measures = judge(trace)
+    assert ok.shape == (1,) and all(v.shape == (1,) for v in measures.values())
+    return bool(ok[0])
+
+
+@pytest.mark.parametrize("pose, family", [("t_pose", "stand"), ("hands_up", "hands_up"), ("sit_on_ground", "sit"),
+                                          ("lie_back", "lie_face_up"), ("crouch_low", "crouch"),
+                                          ("t_pose", "get_up")])
+def test_a_named_pose_held_passes_its_family_and_no_other_posture(pose: str, family: str) -> None:
+    trace = held(goal_qpos(pose))
+    assert passes(family, trace)
+    postures = {"sit", "lie_face_up", "crouch", "hands_up", "jump", "walk", "run", "spin"} - {family}
+    assert not [f for f in postures if passes(f, trace)]
+
+
+@pytest.mark.parametrize("pose", ["kneel_both", "lie_front", "crouch_high"])
+def test_near_misses_fail(pose: str) -> None:
+    """Kneeling upright is not sitting, lying face down is not face up, a shallow crouch is not a crouch."""
+    trace = held(goal_qpos(pose))
+    assert not passes({"kneel_both": "sit", "lie_front": "lie_face_up", "crouch_high": "crouch"}[pose], trace)
+
+
+def test_jump_needs_flight_and_height_after_the_first_second() -> None:
+    stand = goal_qpos("t_pose")
+    qpos = np.tile(stand, (T, 1))
+    lift = np.zeros(T)
+    lift[45:55] = 0.25 * np.sin(np.linspace(0, np.pi, 10))  # a 0.25 m hop at 1.5 s
+    qpos[:, 2] += lift
+    obs = observe(load_model(), qpos, np.zeros((T, NV))).astype(np.float32)
+    assert passes("jump", B.Trace(obs[:, None]))
+    low = np.tile(stand, (T, 1))
+    low[:, 2] += lift * 0.4  # 0.10 m: off the ground, not high enough
+    assert not passes("jump", B.Trace(observe(load_model(), low, np.zeros((T, NV))).astype(np.float32)[:, None]))
+    early = np.tile(stand, (T, 1))
+    early[:20, 2] += 0.5  # dropped from 0.5 m: a fall start, not a jump
+    assert not passes("jump", B.Trace(observe(load_model(), early, np.zeros((T, NV))).astype(np.float32)[:, None]))
+
+
+@pytest.mark.parametrize("vx, vy, walk, run", [(2.0, 0.0, True, False), (4.0, 0.0, False, True),
+                                               (0.5, 0.0, False, False), (0.0, 2.0, False, False),
+                                               (-2.0, 0.0, False, False)])
+def test_walk_and_run_read_speed_along_the_facing(vx: float, vy: float, walk: bool, run: bool) -> None:
+    qvel = np.zeros(NV)
+    qvel[:2] = vx, vy  # the t_pose faces +x
+    trace = held(goal_qpos("t_pose"), qvel)
+    assert passes("walk", trace) is walk and passes("run", trace) is run
+    ok, m = {f.name: f.judge for f in B.FAMILIES}["walk"](trace)  # type: ignore[misc]
+    assert m["speed"][0] == pytest.approx(vx, abs=0.05)
+
+
+def test_spin_reads_the_yaw_rate_and_its_sign() -> None:
+    qvel = np.zeros(NV)
+    qvel[5] = 3.0  # about the vertical, rad/s
+    assert passes("spin", held(goal_qpos("t_pose"), qvel))
+    qvel[5] = -3.0
+    assert not passes("spin", held(goal_qpos("t_pose"), qvel))
+
+
+def test_families_by_name_and_bad_input() -> None:
+    assert [f.name for f in B.families(["jump", "stand"])] == ["stand", "jump"]
+    with pytest.raises(InputError, match="unknown behaviour family leap.*get_up"):
+        B.families(["leap"])
+    with pytest.raises(InputError, match="steps must be >= 60"):
+        B.check({"zero": ZeroAgent()}, ["stand"], episodes=1, steps=30)
+
+
+def test_floor_runs_once_per_start_and_is_judged_for_every_family(tmp_path) -> None:
+    res = B.check({"zero": ZeroAgent()}, ["stand", "get_up", "goal_poses"], episodes=2, steps=60, seed=3,
+                  out=tmp_path, show_progress=False)
+    fam = res["families"]
+    assert fam["stand"]["agents"]["zero"]["standing"]["pass"] == 1.0  # zero action holds a quiet standing start
+    assert fam["get_up"]["agents"]["zero"]["fall"]["pass"] == 0.0  # and does not rise from a fall
+    assert fam["stand"]["passed"] and not fam["get_up"]["passed"]
+    poses = fam["goal_poses"]["agents"]["zero"]["standing"]["poses"]
+    assert len(poses) == 33 and poses["t_pose"]["final_distance"] < poses["lie_back"]["final_distance"]
+    assert res["summary"] == {"passed": ["stand"], "families_passed": 1, "of": 3}
+    assert json.loads((tmp_path / "behaviours.json").read_text())["summary"]["families_passed"] == 1
+    sheets = res["sheets"]
+    if isinstance(sheets, list):
+        assert sorted(p.rsplit("/", 1)[1] for p in sheets) == ["get_up.png", "goal_poses.png", "stand.png"]
+        from PIL import Image
+
+        assert Image.open(sheets[0]).size == (7 * B.TILE[0], B.TILE[1] + 18)
+    else:
+        assert sheets.startswith("no contact sheets: no OpenGL renderer")
+
+
+def test_cli_behaviours_suite(tmp_path) -> None:
+    runner = CliRunner()
+    out = tmp_path / "beh"
+    res = runner.invoke(app, ["eval", "zero", "--suite", "behaviours", "--tasks", "stand,jump", "--episodes", "1",
+                              "--steps", "60", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "zero passes 1 of 2 families" in " ".join(res.output.split())
+    assert set(json.loads((out / "behaviours.json").read_text())["families"]) == {"stand", "jump"}
+    bad = runner.invoke(app, ["eval", "zero", "--suite", "behaviours", "--fall-prob", "0.2"])
+    assert bad.exit_code != 0 and "--fall-prob" in bad.output
+    unknown = runner.invoke(app, ["eval", "zero", "--suite", "behaviours", "--tasks", "leap", "--out", str(out)])
+    assert unknown.exit_code != 0 and "unknown behaviour family leap" in " ".join(unknown.output.split())
