@@ -59,8 +59,11 @@ def test_import_reports_failures_and_keeps_earlier_outputs(tmp_path, monkeypatch
     (tmp_path / "mixed").mkdir()
     (tmp_path / "mixed" / "again.bvh").write_text(text)
     (tmp_path / "mixed" / "junk.txt").write_text("{ nope")
+    (tmp_path / "mixed" / "README.md").write_text("# where these takes come from")  # no motion: skipped, not failed
+    (tmp_path / "mixed" / "index.csv").write_text("take,description")
     res = runner.invoke(app, ["motions", "import", str(tmp_path / "mixed"), "--out", str(out)])
     assert res.exit_code == 1 and (out / "again.npz").is_file()
+    assert "skipped 2 files in the folders that hold no motion: README.md, index.csv" in " ".join(res.output.split())
     summary = json.loads((out / "import_summary.json").read_text())
     assert [c["clip"] for c in summary["clips"]] == ["squat.npz", "again.npz"] and len(summary["failures"]) == 7
     assert summary["total_seconds"] == round(sum(c["seconds"] for c in summary["clips"]), 3)

@@ -19,15 +19,23 @@ motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH, ASF
                           cls=HelpGroup)
 
 
-def _expand(sources: list[Path]) -> list[Path]:
-    """Files as given; folders expand to the files inside them (recursively, sorted)."""
+#: the suffixes of motion files (AMASS, DeepMimic, BVH, ASF/AMC); a folder's other files are no motions
+MOTION_SUFFIXES = (".npz", ".txt", ".json", ".bvh", ".amc", ".asf")
+
+
+def _expand(sources: list[Path]) -> tuple[list[Path], list[Path]]:
+    """(files, skipped): files as given; folders expand to the files inside them with a motion file's suffix
+    (recursively, sorted), and their other files (a README, an index) are skipped rather than failed."""
     out: list[Path] = []
+    skipped: list[Path] = []
     for src in sources:
-        if src.is_dir():
-            out.extend(p for p in sorted(src.rglob("*")) if p.is_file() and not p.name.startswith("."))
-        else:
+        if not src.is_dir():
             out.append(src)
-    return out
+            continue
+        for p in sorted(src.rglob("*")):
+            if p.is_file() and not p.name.startswith("."):
+                (out if p.suffix.lower() in MOTION_SUFFIXES else skipped).append(p)
+    return out, skipped
 
 
 def _write_json_atomic(data: dict, path: Path) -> None:
@@ -109,7 +117,11 @@ def import_cmd(
     if up_axis not in (None, "y", "z"):
         raise typer.BadParameter("--up-axis must be y or z")
     names = read_joint_map(joint_map) if joint_map is not None else None
-    files = _expand(sources)
+    files, skipped = _expand(sources)
+    if skipped:
+        err_console.print(f"skipped {len(skipped)} file{'s' if len(skipped) > 1 else ''} in the folders that hold no "
+                          f"motion: {', '.join(p.name for p in skipped[:5])}{', ...' if len(skipped) > 5 else ''}",
+                          highlight=False)
     skeletons = [p for p in files if p.suffix.lower() == ".asf"]  # read with their motions, not as motions
     files = [p for p in files if p.suffix.lower() != ".asf"]
     if not files:
