@@ -29,7 +29,8 @@ from typing import Any
 import torch
 from rich.console import Console
 
-from fbcpr.eval.behaviours import check, table
+from fbcpr.eval.behaviours import check
+from fbcpr.eval.behaviours import table as behaviour_table
 from fbcpr.eval.report import json_safe
 from fbcpr.eval.runner import EPISODE_STEPS, evaluate
 from fbcpr.eval.upright import upright
@@ -96,7 +97,7 @@ def main() -> None:
     behaviours = check({name: make_agent(name, seed=args.seed) for name in (args.agent, "zero", "random")},
                        episodes=max(args.episodes, 8), steps=args.steps, seed=args.seed, show_progress=False,
                        num_threads=args.threads)
-    Console().print(table(behaviours))
+    Console().print(behaviour_table(behaviours))
     if args.out:
         args.out.write_text(json.dumps(json_safe({**rows, "settings": settings, "behaviours": behaviours}), indent=1))
 
