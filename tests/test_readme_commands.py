@@ -26,6 +26,8 @@ SKIP = {
 SHORT = {
     "prompt": ["--steps", "5"],
     "eval": ["--episodes", "1", "--steps", "5"],
+    # the behaviour checks read an episode's last second and half: two families of 2 s
+    "eval --suite behaviours": ["--episodes", "1", "--steps", "60", "--tasks", "stand,get_up"],
     "train": ["--steps", "1", "--no-progress"],
     "export": ["--reward-samples", "200"],
     # the shipped NEAR config pretrains its energy network for 2,000 steps first (half a minute here): a tiny one

@@ -112,7 +112,7 @@ def _sit(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     pelvis, head = _last(tr.z("Pelvis"), 1.0), _last(tr.z("Head"), 1.0)
     knee = np.minimum(_last(tr.z("L_Knee"), 1.0), _last(tr.z("R_Knee"), 1.0))
     seated = (pelvis < 0.5) & ((pelvis < 0.25) | (knee < 0.15)) & (head - pelvis > 0.35)
-    return seated.all(0), {"pelvis": pelvis.mean(0), "torso_rise": (head - pelvis).mean(0)}
+    return seated.all(0), {"pelvis": pelvis.mean(0), "torso_rise": (head - pelvis).mean(0), "held": seated.mean(0)}
 
 
 def _lie_up(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -132,7 +132,7 @@ def _crouch(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     ankles = np.maximum(_last(tr.z("L_Ankle"), 1.0), _last(tr.z("R_Ankle"), 1.0))
     knees = np.minimum(_last(tr.z("L_Knee"), 1.0), _last(tr.z("R_Knee"), 1.0))
     ok = (pelvis > 0.3) & (pelvis < 0.7) & (ankles < 0.2) & (knees > 0.2) & (head - pelvis > 0.35)
-    return ok.all(0), {"pelvis": pelvis.mean(0)}
+    return ok.all(0), {"pelvis": pelvis.mean(0), "held": ok.mean(0)}
 
 
 def _hands_up(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:

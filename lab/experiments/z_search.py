@@ -26,9 +26,10 @@ from fbcpr import BFM
 from fbcpr.eval import behaviours as B
 from fbcpr.inference.refine import Search, cross_entropy, project
 
-#: per family, the measure the search ranks by and its sign (larger is better after the sign)
+#: per family, the measure the search ranks by and its sign (larger is better after the sign); sit and crouch rank
+#: by the share of the last second in the posture (a low pelvis alone ranks lying first)
 MEASURE = {"stand": ("speed", -1), "walk": ("speed", 1), "run": ("speed", 1), "jump": ("apex_gain", 1),
-           "sit": ("pelvis", -1), "lie_face_up": ("chest_up", 1), "get_up": ("pelvis", 1), "crouch": ("pelvis", -1),
+           "sit": ("held", 1), "lie_face_up": ("chest_up", 1), "get_up": ("pelvis", 1), "crouch": ("held", 1),
            "hands_up": ("lower_wrist_over_head", 1), "spin": ("yaw_rate", 1)}
 
 
@@ -51,7 +52,7 @@ def pool(bfm: BFM, motions: list[Path], n_random: int, frames_per_clip: int, see
 
 
 def judge_all(bfm: BFM, zs: np.ndarray, starts: dict[str, tuple[np.ndarray, np.ndarray]], fams: list[B.Family],
-              steps: int) -> dict[str, dict[str, np.ndarray]]:
+              steps: int, threads: int | None = None) -> dict[str, dict[str, np.ndarray]]:
     """Per family: pass (K, E) and measure (K, E) of each z from the family's start, E episodes each; rolled out in
     groups of `B.CHUNK` envs so the recorded observations stay small."""
     from humanoid_env.observation import OBS_DIM
@@ -71,7 +72,7 @@ def judge_all(bfm: BFM, zs: np.ndarray, starts: dict[str, tuple[np.ndarray, np.n
             def keep(t: int, envs: slice, o: np.ndarray, q: np.ndarray, obs: np.ndarray = obs) -> None:
                 obs[t + 1, envs] = o
 
-            B.run_batch(bfm, batch, steps, keep)
+            B.run_batch(bfm, batch, steps, keep, num_threads=threads)
             trace = B.Trace(obs)
             for f in fams:
                 if f.start != start or f.judge is None:
@@ -96,8 +97,13 @@ def main() -> None:
     ap.add_argument("--population", type=int, default=16)
     ap.add_argument("--confirm", type=int, default=4, help="fresh episodes for each confirmed z")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, help="torch and MuJoCo threads (default: all cores); 1 beside a training")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
+    if args.threads is not None:
+        import torch
+
+        torch.set_num_threads(args.threads)
     if args.families:
         names = args.families
     elif args.behaviours:
@@ -110,7 +116,7 @@ def main() -> None:
     cands = pool(bfm, args.motions, args.random, args.frames, args.seed)
     labels, zs = list(cands), np.stack(list(cands.values()))
     print(f"{len(labels)} candidate z's, {time.time() - t0:.0f} s", flush=True)
-    screen = judge_all(bfm, zs, B.start_states(1, args.seed), fams, args.steps)
+    screen = judge_all(bfm, zs, B.start_states(1, args.seed), fams, args.steps, args.threads)
     print(f"screened in {time.time() - t0:.0f} s", flush=True)
     fresh = B.start_states(args.confirm, args.seed + 100)
     search_starts = B.start_states(2, args.seed + 50)
@@ -123,13 +129,13 @@ def main() -> None:
         top = [labels[i] for i in order[:3]]
 
         def score(batch: np.ndarray, f: B.Family = f) -> np.ndarray:
-            r = judge_all(bfm, batch.astype(np.float32), search_starts, [f], args.steps)[f.name]
+            r = judge_all(bfm, batch.astype(np.float32), search_starts, [f], args.steps, args.threads)[f.name]
             return r["pass"].mean(1) + 0.1 * np.tanh(r["measure"].mean(1))
 
         refined = cross_entropy(score, cands[top[0]], Search(generations=args.generations,
                                                              population=args.population, seed=args.seed))
         confirm = {lab: cands[lab] for lab in [f"reward:{f.prompt}", *top]} | {"cem": refined.z}
-        c = judge_all(bfm, np.stack(list(confirm.values())), fresh, [f], args.steps)[f.name]
+        c = judge_all(bfm, np.stack(list(confirm.values())), fresh, [f], args.steps, args.threads)[f.name]
         rows = {lab: {"pass": float(c["pass"][i].mean()), MEASURE[f.name][0]: float(MEASURE[f.name][1] *
                                                                                    c["measure"][i].mean())}
                 for i, lab in enumerate(confirm)}
