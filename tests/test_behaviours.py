@@ -91,6 +91,8 @@ def test_families_by_name_and_bad_input() -> None:
     assert [f.name for f in B.families(["jump", "stand"])] == ["stand", "jump"]
     with pytest.raises(InputError, match="unknown behaviour family leap.*get_up"):
         B.families(["leap"])
+    with pytest.raises(InputError, match="episodes must be 1-32"):
+        B.check({"zero": ZeroAgent()}, ["stand"], episodes=1000, steps=60)
     with pytest.raises(InputError, match="steps must be >= 60"):
         B.check({"zero": ZeroAgent()}, ["stand"], episodes=1, steps=30)
 
@@ -128,3 +130,25 @@ def test_cli_behaviours_suite(tmp_path) -> None:
     assert bad.exit_code != 0 and "--fall-prob" in bad.output
     unknown = runner.invoke(app, ["eval", "zero", "--suite", "behaviours", "--tasks", "leap", "--out", str(out)])
     assert unknown.exit_code != 0 and "unknown behaviour family leap" in " ".join(unknown.output.split())
+
+
+def test_a_diverged_episode_fails_its_family(monkeypatch) -> None:
+    """The env restarts an env whose simulation diverged (from a quiet standing start): its episode must not pass
+    as the new start's behaviour."""
+    from humanoid_env.vector import VectorHumanoidEnv
+
+    real = VectorHumanoidEnv.step
+    calls = {"n": 0}
+
+    def step(self, action):
+        out = real(self, action)
+        calls["n"] += 1
+        if calls["n"] == 10:
+            out[4]["diverged"][0] = True  # the first standing episode
+        return out
+
+    monkeypatch.setattr(VectorHumanoidEnv, "step", step)
+    res = B.check({"zero": ZeroAgent()}, ["stand"], episodes=2, steps=60, show_progress=False)
+    standing = res["families"]["stand"]["agents"]["zero"]["standing"]
+    assert standing["pass"] == 0.5 and standing["diverged"] == 1
+    assert res["families"]["stand"]["agents"]["zero"]["fall"]["diverged"] == 0

@@ -26,8 +26,10 @@ from humanoid_env.tasks.features import Features
 
 STARTS = ("standing", "fall")
 PASS_SHARE = 0.5
-#: envs stepped together: bounds the memory of the recorded observations (~40 MB at 300 steps)
+#: envs one vector env steps at once
 CHUNK = 96
+#: the recorded observations grow with episodes: 32 episodes of 300 steps keep ~250 MB
+MAX_EPISODES = 32
 STANDING, FALLEN = 0.8, 0.6
 FLIGHT_CLEARANCE, JUMP_GAIN = 0.05, 0.15
 FEET = ("L_Ankle", "L_Toe", "R_Ankle", "R_Toe")
@@ -214,8 +216,9 @@ class Batch:
     qvel: np.ndarray
 
 
-#: what a batch's watcher gets after each step t (t = -1: the start): the slice of envs, their obs and qpos
-Watch = Callable[[int, slice, np.ndarray, np.ndarray], None]
+#: what a batch's watcher gets after each step t (t = -1: the start): the slice of envs, their obs and qpos, and
+#: which of them diverged in that step (the env then restarts them, so their episode is over)
+Watch = Callable[[int, slice, np.ndarray, np.ndarray, np.ndarray], None]
 
 
 def run_batch(agent: Any, batch: Batch, steps: int, on_obs: Watch, advance: Callable[[int], None] = lambda n: None,
@@ -231,14 +234,14 @@ def run_batch(agent: Any, batch: Batch, steps: int, on_obs: Watch, advance: Call
                                 action_mapping=action_mapping(agent))
         try:
             obs, _ = env.reset(options={"qpos": batch.qpos[envs], "qvel": batch.qvel[envs]})
-            on_obs(-1, envs, obs, batch.qpos[envs])
+            on_obs(-1, envs, obs, batch.qpos[envs], np.zeros(envs.stop - lo, bool))
             z = batch.z[envs]
 
             def act(t: int, o: np.ndarray, z: np.ndarray = z) -> np.ndarray:
                 return np.asarray(agent.act(o, z, mean=True), np.float32)
 
             def watch(step: Step, envs: slice = envs) -> None:
-                on_obs(step.t, envs, step.info["final_obs"], step.info["final_qpos"])
+                on_obs(step.t, envs, step.info["final_obs"], step.info["final_qpos"], step.info["diverged"])
                 advance(envs.stop - envs.start)
 
             rollout(env, obs, act, steps, watch)
@@ -265,9 +268,11 @@ def _prompts(agent: Any, fams: Sequence[Family]) -> dict[str, np.ndarray]:
 @dataclass
 class AgentRun:
     """What one agent did, per (prompt key, start): observations (T+1, E, 358) of the behaviour prompts, distances
-    (E, T) to each goal pose, and episode 0's body states (T+1, nq) for pictures."""
+    (E, T) to each goal pose (infinite once diverged), which episodes diverged (E,), and episode 0's body states
+    (T+1, nq) for pictures."""
 
     obs: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
+    diverged: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
     dist: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
     qpos0: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
 
@@ -299,11 +304,13 @@ def run_agent(agent: Any, fams: Sequence[Family], starts: dict[str, tuple[np.nda
     dist = np.empty((steps + 1, int(goal_env.sum())), np.float32)
     first = np.arange(0, n, episodes)
     qpos0 = np.empty((steps + 1, len(keys), NQ))
+    dead = np.zeros(n, bool)
 
-    def keep(t: int, envs: slice, o: np.ndarray, q: np.ndarray) -> None:
+    def keep(t: int, envs: slice, o: np.ndarray, q: np.ndarray, diverged: np.ndarray) -> None:
+        dead[envs] |= diverged
         goal, idx = goal_env[envs], slot[envs]
         obs[t + 1, idx[~goal]] = o[~goal]
-        dist[t + 1, idx[goal]] = d_smpl(o[goal], targets[idx[goal]])
+        dist[t + 1, idx[goal]] = np.where(dead[envs][goal], np.inf, d_smpl(o[goal], targets[idx[goal]]))
         here = first[(first >= envs.start) & (first < envs.stop)]
         qpos0[t + 1, here // episodes] = q[here - envs.start]
 
@@ -316,6 +323,7 @@ def run_agent(agent: Any, fams: Sequence[Family], starts: dict[str, tuple[np.nda
         else:
             out.obs[key] = obs[:, rows]
         out.qpos0[key] = qpos0[:, i]
+        out.diverged[key] = dead[i * episodes:(i + 1) * episodes]
     return out
 
 
@@ -325,7 +333,9 @@ def judge_family(f: Family, run: AgentRun, start: str) -> dict[str, Any]:
 
     if f.judge is not None:
         ok, measures = f.judge(Trace(run.find(run.obs, f.prompt, start)))
-        return {"pass": float(ok.mean()), **{k: float(np.mean(v)) for k, v in measures.items()}}
+        diverged = run.find(run.diverged, f.prompt, start)
+        return {"pass": float((ok & ~diverged).mean()), "diverged": int(diverged.sum()),
+                **{k: float(np.mean(v)) for k, v in measures.items()}}
     poses = {}
     for g in GOALS:
         key = (f"goal:{g}", start)
@@ -357,8 +367,9 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
     from fbcpr.core.progress import progress_display
 
     fams = families(names)
-    if episodes < 1:
-        raise InputError(f"episodes must be >= 1, got {episodes}")
+    if not 1 <= episodes <= MAX_EPISODES:
+        raise InputError(f"episodes must be 1-{MAX_EPISODES} (the observations of every episode are kept to judge "
+                         f"it), got {episodes}")
     if steps < MIN_STEPS:
         raise InputError(f"steps must be >= {MIN_STEPS} ({MIN_STEPS // CONTROL_HZ} s): the checks read the last "
                          f"half of an episode and its last second; got {steps}")

@@ -69,8 +69,12 @@ def judge_all(bfm: BFM, zs: np.ndarray, starts: dict[str, tuple[np.ndarray, np.n
                             qvel=np.tile(qvel, (len(group), 1)))
             obs = np.empty((steps + 1, len(batch.z), OBS_DIM), np.float32)
 
-            def keep(t: int, envs: slice, o: np.ndarray, q: np.ndarray, obs: np.ndarray = obs) -> None:
+            dead = np.zeros(len(batch.z), bool)
+
+            def keep(t: int, envs: slice, o: np.ndarray, q: np.ndarray, diverged: np.ndarray,
+                     obs: np.ndarray = obs, dead: np.ndarray = dead) -> None:
                 obs[t + 1, envs] = o
+                dead[envs] |= diverged
 
             B.run_batch(bfm, batch, steps, keep, num_threads=threads)
             trace = B.Trace(obs)
@@ -79,7 +83,7 @@ def judge_all(bfm: BFM, zs: np.ndarray, starts: dict[str, tuple[np.ndarray, np.n
                     continue
                 ok, measures = f.judge(trace)
                 key, sign = MEASURE[f.name]
-                out[f.name]["pass"][lo:lo + per] = ok.reshape(len(group), episodes)
+                out[f.name]["pass"][lo:lo + per] = (ok & ~dead).reshape(len(group), episodes)
                 out[f.name]["measure"][lo:lo + per] = sign * measures[key].reshape(len(group), episodes)
     return out
 
