@@ -108,6 +108,7 @@ def test_floor_runs_once_per_start_and_is_judged_for_every_family(tmp_path) -> N
     assert len(poses) == 33 and poses["t_pose"]["final_distance"] < poses["lie_back"]["final_distance"]
     assert res["summary"] == {"passed": ["stand"], "families_passed": 1, "of": 3}
     assert json.loads((tmp_path / "behaviours.json").read_text())["summary"]["families_passed"] == 1
+    assert "poses_reached" not in fam["goal_poses"]  # the zero floor is not compared with itself
     sheets = res["sheets"]
     if isinstance(sheets, list):
         assert sorted(p.rsplit("/", 1)[1] for p in sheets) == ["get_up.png", "goal_poses.png", "stand.png"]
@@ -152,3 +153,12 @@ def test_a_diverged_episode_fails_its_family(monkeypatch) -> None:
     standing = res["families"]["stand"]["agents"]["zero"]["standing"]
     assert standing["pass"] == 0.5 and standing["diverged"] == 1
     assert res["families"]["stand"]["agents"]["zero"]["fall"]["diverged"] == 0
+
+
+def test_goal_poses_reached_are_compared_with_the_zero_floor() -> None:
+    """A model that only stands still reaches the T-poses (the rest pose is one), but no better than zero action."""
+    res = B.check({"still": ZeroAgent(), "zero": ZeroAgent()}, ["goal_poses"], episodes=1, steps=60,
+                  show_progress=False)
+    goals = res["families"]["goal_poses"]
+    assert "t_pose" in goals["poses_reached"] and "lie_back" not in goals["poses_reached"]
+    assert goals["reached_not_above_zero"] == goals["poses_reached"]

@@ -119,6 +119,13 @@ def _behaviours(ctx: typer.Context, ckpt: str, tasks: list[str] | None, episodes
                       f"{max(1, round(minutes))} minute{'s' if minutes >= 1.5 else ''} on 2 CPU cores", highlight=False)
     results = check(agents, names, episodes=episodes, steps=steps, seed=seed, out=out)
     console.print(table(results))
+    goals = results["families"].get("goal_poses", {})
+    if "poses_reached" in goals:
+        same = goals["reached_not_above_zero"]
+        console.print(f"goal poses reached in half the episodes or more: {len(goals['poses_reached'])} of "
+                      f"{len(goals['agents'][results['agent']][goals['start']]['poses'])}"
+                      + (f"; no better than zero action on {len(same)} of them ({', '.join(same)})" if same else ""),
+                      highlight=False)
     sheets = results.get("sheets")
     console.print(f"results in [bold]{out / 'behaviours.json'}[/]" + (f", contact sheets in [bold]{out / 'behaviours'}"
                                                                      "[/]" if isinstance(sheets, list) else

@@ -391,6 +391,12 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
         per_agent = {name: {s: judge_family(f, run, s) for s in STARTS} for name, run in runs.items()}
         results["families"][f.name] = {"prompt": f.prompt, "start": f.start, "rule": f.rule, "need": f.need,
                                        "agents": per_agent, "passed": per_agent[judged][f.start]["pass"] >= f.need}
+    goals = results["families"].get("goal_poses")
+    if goals is not None and "zero" in goals["agents"] and judged != "zero":
+        mine, zero = (goals["agents"][a][goals["start"]]["poses"] for a in (judged, "zero"))
+        reached = [g for g, p in mine.items() if p["success"] >= PASS_SHARE]
+        goals["poses_reached"] = reached  # in half the episodes or more
+        goals["reached_not_above_zero"] = [g for g in reached if mine[g]["success"] <= zero[g]["success"]]
     passed = [n for n, e in results["families"].items() if e["passed"]]
     results["summary"] = {"passed": passed, "families_passed": len(passed), "of": len(fams)}
     if out is not None:
