@@ -9,6 +9,9 @@
 3. The best few z's are confirmed on fresh starts (seed + 100). A z passing there means the skill is in the
    policy and the prompt misses it; none passing means the skill is not learnt (within this search).
 
+`--judge Z.npy ...` only judges saved z's (a prompt refined by `fbcpr prompt --refine --save-z`) beside each
+family's prompt, on the same fresh starts.
+
     python lab/experiments/z_search.py pretrained --behaviours runs/beh_shipped/behaviours.json \\
         --motions data/clips/deepmimic data/clips/mixed --out runs/z_search.json
 """
@@ -88,6 +91,21 @@ def judge_all(bfm: BFM, zs: np.ndarray, starts: dict[str, tuple[np.ndarray, np.n
     return out
 
 
+def judge_saved(bfm: BFM, fams: list[B.Family], args: argparse.Namespace) -> None:
+    """Each family's prompt and every saved z, on the same fresh starts; one row per (family, z)."""
+    saved = {str(p): np.load(p, allow_pickle=False).astype(np.float32) for p in args.judge}
+    fresh = B.start_states(args.confirm, args.seed + 100)
+    report: dict[str, Any] = {}
+    for f in fams:
+        zs = {f"reward:{f.prompt}": bfm.prompt.reward(f.prompt), **saved}
+        r = judge_all(bfm, np.stack(list(zs.values())), fresh, [f], args.steps, args.threads)[f.name]
+        key, sign = MEASURE[f.name]
+        report[f.name] = {lab: {"pass": float(r["pass"][i].mean()), key: float(sign * r["measure"][i].mean())}
+                          for i, lab in enumerate(zs)}
+        print(f"{f.name}: {json.dumps(report[f.name])}", flush=True)
+    args.out.write_text(json.dumps(report, indent=1))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint")
@@ -102,6 +120,8 @@ def main() -> None:
     ap.add_argument("--confirm", type=int, default=4, help="fresh episodes for each confirmed z")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, help="torch and MuJoCo threads (default: all cores); 1 beside a training")
+    ap.add_argument("--judge", type=Path, nargs="*", help="only judge these saved z's (.npy, e.g. from `fbcpr prompt "
+                    "--refine --save-z`) and each family's prompt on --confirm fresh starts")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
     if args.threads is not None:
@@ -117,6 +137,9 @@ def main() -> None:
     fams = [f for f in B.families(names) if f.judge is not None]
     t0 = time.time()
     bfm = BFM.load(args.checkpoint)
+    if args.judge:
+        judge_saved(bfm, fams, args)
+        return
     cands = pool(bfm, args.motions, args.random, args.frames, args.seed)
     labels, zs = list(cands), np.stack(list(cands.values()))
     print(f"{len(labels)} candidate z's, {time.time() - t0:.0f} s", flush=True)

@@ -2,6 +2,9 @@
 per episode, and a z that makes the body sit (found by the search) is told from one that does not."""
 from __future__ import annotations
 
+import argparse
+import json
+
 import numpy as np
 
 import z_search
@@ -27,3 +30,14 @@ def test_judge_all_scores_each_z_per_episode() -> None:
     assert out["stand"]["pass"].shape == (2, 2) and out["walk"]["measure"].shape == (2, 2)
     assert out["stand"]["pass"][0].all()  # the stand prompt stands still
     assert out["walk"]["measure"][1].mean() > out["walk"]["measure"][0].mean() + 0.5  # the walk prompt moves
+
+
+def test_judge_saved_z_beside_the_prompt(tmp_path) -> None:
+    bfm = BFM.pretrained()
+    np.save(tmp_path / "walk.npy", bfm.prompt.reward("move-ego-0-2"))
+    args = argparse.Namespace(judge=[tmp_path / "walk.npy"], confirm=2, seed=0, steps=90, threads=1,
+                              out=tmp_path / "judged.json")
+    z_search.judge_saved(bfm, B.families(["walk"]), args)
+    rows = json.loads(args.out.read_text())["walk"]
+    assert list(rows) == ["reward:move-ego-0-2", str(tmp_path / "walk.npy")]
+    assert rows["reward:move-ego-0-2"] == rows[str(tmp_path / "walk.npy")]  # the same z on the same starts
