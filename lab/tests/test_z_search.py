@@ -1,5 +1,6 @@
 """The z search's pool and judge on the shipped model: every prompt kind is in the pool, each candidate is judged
-per episode, and a z that makes the body sit (found by the search) is told from one that does not."""
+per episode (the walk prompt moves where the stand prompt stands still), and saved z's are judged beside the
+family's prompt."""
 from __future__ import annotations
 
 import argparse
