@@ -162,3 +162,24 @@ def test_goal_poses_reached_are_compared_with_the_zero_floor() -> None:
     goals = res["families"]["goal_poses"]
     assert "t_pose" in goals["poses_reached"] and "lie_back" not in goals["poses_reached"]
     assert goals["reached_not_above_zero"] == goals["poses_reached"]
+
+
+def test_refine_searches_each_family_prompt_from_its_own_kind_of_start() -> None:
+    """With refine, a family is judged under its task prompt refined by rollouts (fbcpr.inference.refine) from starts
+    of its own kind: get_up's stand prompt from falls, stand's from standing, each a z of its own."""
+    from fbcpr import BFM
+
+    bfm = BFM.pretrained()
+    fams = B.families(["stand", "get_up"])
+    zs, key_of = B._prompts(bfm, fams, refine=1, steps=30, seed=0, num_threads=None)
+    assert key_of == {"stand": "move-ego-0-0@standing", "get_up": "move-ego-0-0@fall"}
+    zero_shot = bfm.prompt.reward("move-ego-0-0")
+    assert not np.allclose(zs["move-ego-0-0@standing"], zs["move-ego-0-0@fall"])
+    assert all(np.linalg.norm(z) == pytest.approx(np.sqrt(bfm.z_dim), rel=1e-3) for z in zs.values())
+    assert any(not np.allclose(z, zero_shot) for z in zs.values())  # the search moved off the zero-shot z
+    assert B.refine_env_steps(fams, 1, 30) == 2 * (16 + 1) * B.REFINE_STARTS * 30
+
+
+def test_cli_refine_is_for_the_behaviour_suite_only() -> None:
+    res = CliRunner().invoke(app, ["eval", "zero", "--suite", "goal", "--refine", "2"])
+    assert res.exit_code != 0 and "--refine applies to --suite behaviours" in " ".join(res.output.split())

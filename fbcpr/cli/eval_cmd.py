@@ -58,6 +58,9 @@ def eval_command(
     quick: bool = typer.Option(False, "--quick", help=f"A check in under a minute on 2 CPU cores: "
                                f"{', '.join(QUICK_TASKS)} and the first {QUICK_CLIPS} clips, {QUICK_EPISODES} "
                                f"episodes of {QUICK_STEPS} steps (--episodes and --steps still apply)."),
+    refine: int = typer.Option(0, "--refine", min=0, help="With --suite behaviours: first refine each family's "
+                               "task prompt by this many generations of rollouts against the task's reward (as "
+                               "`fbcpr prompt --refine`; 10 takes about 10 minutes a family on one CPU core)."),
 ) -> None:
     """Evaluate an agent zero-shot on reward tasks, goal poses and motion tracking (paper App. C.3)."""
     from fbcpr.eval.report import print_report
@@ -65,8 +68,10 @@ def eval_command(
     from fbcpr.inference.agents import make_agent
 
     if suite == Suite.behaviours:
-        _behaviours(ctx, choose_model(ckpt, model), tasks, episodes, steps, out, seed, quick)
+        _behaviours(ctx, choose_model(ckpt, model), tasks, episodes, steps, out, seed, quick, refine)
         return
+    if refine:
+        raise typer.BadParameter("--refine applies to --suite behaviours (the benchmark's suites prompt zero-shot)")
     if suite == Suite.tracking:
         extra = [f"--{n.replace('_', '-')}" for n in ("episodes", "steps", "fall_prob") if given(ctx, n)]
         if extra:
@@ -95,9 +100,9 @@ def eval_command(
 
 
 def _behaviours(ctx: typer.Context, ckpt: str, tasks: list[str] | None, episodes: int, steps: int, out: Path,
-                seed: int, quick: bool) -> None:
+                seed: int, quick: bool, refine: int) -> None:
     """`--suite behaviours`: the agent and the zero and random floors from the same standing and fall starts."""
-    from fbcpr.eval.behaviours import FAMILIES, check, estimate_env_steps, families, table
+    from fbcpr.eval.behaviours import FAMILIES, check, estimate_env_steps, families, refine_env_steps, table
     from fbcpr.inference.agents import make_agent
 
     extra = [f"--{n.replace('_', '-')}" for n in ("motions", "fall_prob") if given(ctx, n)]
@@ -112,12 +117,13 @@ def _behaviours(ctx: typer.Context, ckpt: str, tasks: list[str] | None, episodes
         steps = steps if given(ctx, "steps") else QUICK_STEPS
     fams = families(names)
     agents = {name: make_agent(name, seed=seed) for name in dict.fromkeys((ckpt, "zero", "random"))}
-    total = sum(estimate_env_steps(fams, episodes, steps, a.z_dim > 0) for a in agents.values())
+    total = sum(estimate_env_steps(fams, episodes, steps, a.z_dim > 0) + refine_env_steps(fams, refine, steps)
+                * (a.z_dim > 0) for a in agents.values())
     minutes = total * ENV_STEP_S / 60
     err_console.print(f"checking {len(fams)} of {len(FAMILIES)} behaviour families x 2 starts x {episodes} episodes "
                       f"x {steps} steps for {', '.join(agents)}: {total:,} env steps, about "
                       f"{max(1, round(minutes))} minute{'s' if minutes >= 1.5 else ''} on 2 CPU cores", highlight=False)
-    results = check(agents, names, episodes=episodes, steps=steps, seed=seed, out=out)
+    results = check(agents, names, episodes=episodes, steps=steps, seed=seed, out=out, refine=refine)
     console.print(table(results))
     goals = results["families"].get("goal_poses", {})
     if "poses_reached" in goals:

@@ -249,20 +249,53 @@ def run_batch(agent: Any, batch: Batch, steps: int, on_obs: Watch, advance: Call
             env.close()
 
 
-def _prompts(agent: Any, fams: Sequence[Family]) -> dict[str, np.ndarray]:
-    """Each family's z (each goal pose's, keyed "goal:NAME", for the goal family); a floor has one empty z, keyed
-    "", for everything."""
+#: refinement (`refine`): standing or fall starts each candidate z is rolled out from, apart from the checks' own
+REFINE_STARTS = 8
+
+
+def _prompts(agent: Any, fams: Sequence[Family], refine: int, steps: int, seed: int, num_threads: int | None,
+             on_refine: Callable[[int], None] | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """(z by prompt key, prompt key by family). A family's z is its task's prompt, refined by `refine` generations
+    of rollouts against the task's reward from starts of the family's own kind when `refine` > 0 (then keyed
+    "TASK@START"); the goal family's are each pose's, keyed "goal:NAME". A floor has one empty z, keyed ""."""
     from humanoid_env.tasks import GOALS, goal_obs
 
     if agent.z_dim == 0:
-        return {"": np.zeros(0, np.float32)}
-    out: dict[str, np.ndarray] = {}
+        return {"": np.zeros(0, np.float32)}, {f.name: "" for f in fams}
+    zs: dict[str, np.ndarray] = {}
+    key_of: dict[str, str] = {}
     for f in fams:
         if f.judge is None:
-            out.update({f"goal:{g}": np.asarray(agent.goal_z(goal_obs(g)), np.float32) for g in GOALS})
-        else:
-            out[f.prompt] = np.asarray(agent.reward_z(f.prompt), np.float32)
-    return out
+            zs.update({f"goal:{g}": np.asarray(agent.goal_z(goal_obs(g)), np.float32) for g in GOALS})
+            continue
+        key = f"{f.prompt}@{f.start}" if refine else f.prompt
+        key_of[f.name] = key
+        if key not in zs:
+            z = np.asarray(agent.reward_z(f.prompt), np.float32)
+            zs[key] = _refined(agent, z, f, refine, steps, seed, num_threads, on_refine) if refine else z
+    return zs, key_of
+
+
+def _refined(agent: Any, z0: np.ndarray, f: Family, generations: int, steps: int, seed: int,
+             num_threads: int | None, on_step: Callable[[int], None] | None) -> np.ndarray:
+    """`fbcpr.inference.refine` of a family's task prompt, from starts of its kind drawn apart from the checks';
+    `on_step(k)` hears of k candidate episodes stepped."""
+    from fbcpr.inference.refine import Search, refine, reward_objective
+
+    starts = start_states(REFINE_STARTS, seed + 1000)[f.start]
+    return refine(agent, z0, reward_objective(f.prompt), starts, steps=steps,
+                  search=Search(generations=generations, seed=seed), num_threads=num_threads, on_step=on_step).z
+
+
+def refine_env_steps(fams: Sequence[Family], generations: int, steps: int) -> int:
+    """Env steps that refining the families' prompts costs (each distinct task and start once)."""
+    from fbcpr.inference.refine import Search
+
+    if generations == 0:
+        return 0
+    search = Search(generations=generations)
+    prompts = {(f.prompt, f.start) for f in fams if f.judge is not None}
+    return len(prompts) * (search.generations * search.population + 1) * REFINE_STARTS * steps
 
 
 @dataclass
@@ -275,6 +308,7 @@ class AgentRun:
     diverged: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
     dist: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
     qpos0: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
+    key_of: dict[str, str] = field(default_factory=dict)  # each behaviour family's prompt key
 
     def find(self, table: dict[tuple[str, str], np.ndarray], prompt: str, start: str) -> np.ndarray:
         """A floor ran one prompt ("") for every family."""
@@ -282,14 +316,15 @@ class AgentRun:
 
 
 def run_agent(agent: Any, fams: Sequence[Family], starts: dict[str, tuple[np.ndarray, np.ndarray]], steps: int,
-              advance: Callable[[int], None] = lambda n: None, num_threads: int | None = None) -> AgentRun:
+              advance: Callable[[int], None] = lambda n: None, num_threads: int | None = None, refine: int = 0,
+              seed: int = 0, on_refine: Callable[[int], None] | None = None) -> AgentRun:
     """Every (prompt, start) of `fams` for `agent`, all episodes in one batch; a goal pose's episodes keep only
-    their distance to the pose."""
+    their distance to the pose. With `refine`, each family's prompt is refined first (`_prompts`)."""
     from humanoid_env.model import NQ
     from humanoid_env.observation import OBS_DIM
     from humanoid_env.tasks import goal_obs
 
-    zs = _prompts(agent, fams)
+    zs, key_of = _prompts(agent, fams, refine, steps, seed, num_threads, on_refine)
     keys = [(p, s) for p in zs for s in starts]
     episodes = len(starts["standing"][0])
     n = len(keys) * episodes
@@ -315,7 +350,7 @@ def run_agent(agent: Any, fams: Sequence[Family], starts: dict[str, tuple[np.nda
         qpos0[t + 1, here // episodes] = q[here - envs.start]
 
     run_batch(agent, batch, steps, keep, advance, num_threads)
-    out = AgentRun()
+    out = AgentRun(key_of=key_of)
     for i, key in enumerate(keys):
         rows = slot[i * episodes:(i + 1) * episodes]
         if key[0].startswith("goal:"):
@@ -332,8 +367,8 @@ def judge_family(f: Family, run: AgentRun, start: str) -> dict[str, Any]:
     from humanoid_env.tasks import GOALS, goal_obs
 
     if f.judge is not None:
-        ok, measures = f.judge(Trace(run.find(run.obs, f.prompt, start)))
-        diverged = run.find(run.diverged, f.prompt, start)
+        ok, measures = f.judge(Trace(run.find(run.obs, run.key_of[f.name], start)))
+        diverged = run.find(run.diverged, run.key_of[f.name], start)
         return {"pass": float((ok & ~diverged).mean()), "diverged": int(diverged.sum()),
                 **{k: float(np.mean(v)) for k, v in measures.items()}}
     poses = {}
@@ -357,10 +392,11 @@ def estimate_env_steps(fams: Sequence[Family], episodes: int, steps: int, model:
 
 def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: int = 8, steps: int = 300,
           seed: int = 0, out: Path | None = None, show_progress: bool = True,
-          num_threads: int | None = None) -> dict[str, Any]:
+          num_threads: int | None = None, refine: int = 0) -> dict[str, Any]:
     """Run the behaviour families for each agent (the first is the one judged; the others, usually the zero and
     random floors, stand beside it) from the same starts, and with `out` write behaviours.json and one contact
-    sheet per family there."""
+    sheet per family there. `refine` > 0 first refines each family's task prompt by that many generations of
+    rollouts (`fbcpr.inference.refine`; about 10 minutes a family on one core at 10), the goal poses' excepted."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -379,14 +415,20 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
     runs: dict[str, AgentRun] = {}
     with progress_display(Console(stderr=True), *columns, disable=not show_progress) as progress:
         for name, agent in agents.items():
+            polish = refine if agent.z_dim > 0 else 0
+            tuning = progress.add_task("refine", total=refine_env_steps(fams, polish, steps)) if polish else None
             bar = progress.add_task(name, total=estimate_env_steps(fams, episodes, steps, agent.z_dim > 0))
 
             def advance(k: int, bar: Any = bar) -> None:
                 progress.advance(bar, k)
 
-            runs[name] = run_agent(agent, fams, starts, steps, advance, num_threads)
+            def refined(k: int, tuning: Any = tuning) -> None:
+                progress.advance(tuning, k * REFINE_STARTS)
+
+            runs[name] = run_agent(agent, fams, starts, steps, advance, num_threads, polish, seed, refined)
     judged = next(iter(agents))
-    results: dict[str, Any] = {"agent": judged, "episodes": episodes, "steps": steps, "seed": seed, "families": {}}
+    results: dict[str, Any] = {"agent": judged, "episodes": episodes, "steps": steps, "seed": seed,
+                               "refine": refine, "families": {}}
     for f in fams:
         per_agent = {name: {s: judge_family(f, run, s) for s in STARTS} for name, run in runs.items()}
         results["families"][f.name] = {"prompt": f.prompt, "start": f.start, "rule": f.rule, "need": f.need,
@@ -435,7 +477,10 @@ def write_sheets(fams: Sequence[Family], runs: dict[str, AgentRun], out: Path, f
         for f in fams:
             rows = []
             for name, run in runs.items():
-                prompts = [f"goal:{g}" for g in SHEET_POSES] if f.judge is None and name == judged else [f.prompt]
+                if f.judge is None:
+                    prompts = [f"goal:{g}" for g in SHEET_POSES] if name == judged else [""]
+                else:
+                    prompts = [run.key_of[f.name]]
                 for p in prompts:
                     key = (p, f.start) if (p, f.start) in run.qpos0 else ("", f.start)
                     label = f"{name}: {p if name == judged else 'floor'}, {f.start} start"
@@ -478,8 +523,9 @@ def table(results: dict[str, Any]) -> Any:
     from rich.table import Table
 
     agents = list(next(iter(results["families"].values()))["agents"])
+    refined = f", prompts refined by {results['refine']} generations" if results.get("refine") else ""
     t = Table(title=f"behaviour checks: {results['episodes']} episodes of {results['steps'] / CONTROL_HZ:g} s, "
-                    f"seed {results['seed']}")
+                    f"seed {results['seed']}{refined}")
     t.add_column("family")
     t.add_column("start")
     for a in agents:
