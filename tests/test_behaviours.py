@@ -91,8 +91,10 @@ def test_families_by_name_and_bad_input() -> None:
     assert [f.name for f in B.families(["jump", "stand"])] == ["stand", "jump"]
     with pytest.raises(InputError, match="unknown behaviour family leap.*get_up"):
         B.families(["leap"])
-    with pytest.raises(InputError, match="episodes must be 1-32"):
+    with pytest.raises(InputError, match="episodes x steps must be 1-9,600.*got 1000 x 60"):
         B.check({"zero": ZeroAgent()}, ["stand"], episodes=1000, steps=60)
+    with pytest.raises(InputError, match="got 2 x 100000"):
+        B.check({"zero": ZeroAgent()}, ["stand"], episodes=2, steps=100_000)
     with pytest.raises(InputError, match="steps must be >= 60"):
         B.check({"zero": ZeroAgent()}, ["stand"], episodes=1, steps=30)
 

@@ -28,8 +28,8 @@ STARTS = ("standing", "fall")
 PASS_SHARE = 0.5
 #: envs one vector env steps at once
 CHUNK = 96
-#: the recorded observations grow with episodes: 32 episodes of 300 steps keep ~250 MB
-MAX_EPISODES = 32
+#: the recorded observations grow with episodes x steps: 9,600 (32 episodes of 300 steps) keep ~250 MB
+MAX_EPISODE_STEPS = 9_600
 STANDING, FALLEN = 0.8, 0.6
 FLIGHT_CLEARANCE, JUMP_GAIN = 0.05, 0.15
 FEET = ("L_Ankle", "L_Toe", "R_Ankle", "R_Toe")
@@ -403,9 +403,9 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
     from fbcpr.core.progress import progress_display
 
     fams = families(names)
-    if not 1 <= episodes <= MAX_EPISODES:
-        raise InputError(f"episodes must be 1-{MAX_EPISODES} (the observations of every episode are kept to judge "
-                         f"it), got {episodes}")
+    if episodes < 1 or episodes * steps > MAX_EPISODE_STEPS:
+        raise InputError(f"episodes x steps must be 1-{MAX_EPISODE_STEPS:,} (every step of every episode is kept to "
+                         f"judge it; e.g. 32 episodes of 300 steps), got {episodes} x {steps}")
     if steps < MIN_STEPS:
         raise InputError(f"steps must be >= {MIN_STEPS} ({MIN_STEPS // CONTROL_HZ} s): the checks read the last "
                          f"half of an episode and its last second; got {steps}")
