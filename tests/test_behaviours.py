@@ -170,16 +170,19 @@ def test_refine_searches_each_family_prompt_from_its_own_kind_of_start() -> None
     """With refine, a family is judged under its task prompt refined by rollouts (fbcpr.inference.refine) from starts
     of its own kind: get_up's stand prompt from falls, stand's from standing, each a z of its own."""
     from fbcpr import BFM
+    from fbcpr.cli.eval_cmd import reward_refinement
 
     bfm = BFM.pretrained()
     fams = B.families(["stand", "get_up"])
-    zs, key_of = B._prompts(bfm, fams, refine=1, steps=30, seed=0, num_threads=None)
+    refinement = reward_refinement(1, steps=30, seed=0)
+    zs, key_of = B._prompts(bfm, fams, refinement, seed=0)
     assert key_of == {"stand": "move-ego-0-0@standing", "get_up": "move-ego-0-0@fall"}
     zero_shot = bfm.prompt.reward("move-ego-0-0")
     assert not np.allclose(zs["move-ego-0-0@standing"], zs["move-ego-0-0@fall"])
     assert all(np.linalg.norm(z) == pytest.approx(np.sqrt(bfm.z_dim), rel=1e-3) for z in zs.values())
     assert any(not np.allclose(z, zero_shot) for z in zs.values())  # the search moved off the zero-shot z
-    assert B.refine_env_steps(fams, 1, 30) == 2 * (16 + 1) * B.REFINE_STARTS * 30
+    assert B.refine_env_steps(fams, refinement) == 2 * (16 + 1) * B.REFINE_STARTS * 30
+    assert B.refine_env_steps(fams, None) == 0
 
 
 def test_cli_refine_is_for_the_behaviour_suite_only() -> None:

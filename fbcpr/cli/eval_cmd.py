@@ -1,12 +1,19 @@
 """`fbcpr eval`: run the zero-shot benchmark (reward, goal, tracking suites) on a checkpoint or a floor baseline."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from enum import Enum
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from fbcpr.cli.common import MODEL_HELP, choose_model, cli_errors, console, err_console, given
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from fbcpr.eval.behaviours import Refinement
 
 #: `--quick`: a few tasks of each suite, the ones the shipped model does well and poorly, in under a minute.
 QUICK_TASKS = ("move-ego-0-0", "move-ego-0-2", "crouch-0", "jump-2", "t_pose")
@@ -117,13 +124,14 @@ def _behaviours(ctx: typer.Context, ckpt: str, tasks: list[str] | None, episodes
         steps = steps if given(ctx, "steps") else QUICK_STEPS
     fams = families(names)
     agents = {name: make_agent(name, seed=seed) for name in dict.fromkeys((ckpt, "zero", "random"))}
-    total = sum(estimate_env_steps(fams, episodes, steps, a.z_dim > 0) + refine_env_steps(fams, refine, steps)
+    refinement = reward_refinement(refine, steps, seed) if refine else None
+    total = sum(estimate_env_steps(fams, episodes, steps, a.z_dim > 0) + refine_env_steps(fams, refinement)
                 * (a.z_dim > 0) for a in agents.values())
     minutes = total * ENV_STEP_S / 60
     err_console.print(f"checking {len(fams)} of {len(FAMILIES)} behaviour families x 2 starts x {episodes} episodes "
                       f"x {steps} steps for {', '.join(agents)}: {total:,} env steps, about "
                       f"{max(1, round(minutes))} minute{'s' if minutes >= 1.5 else ''} on 2 CPU cores", highlight=False)
-    results = check(agents, names, episodes=episodes, steps=steps, seed=seed, out=out, refine=refine)
+    results = check(agents, names, episodes=episodes, steps=steps, seed=seed, out=out, refine=refinement)
     console.print(table(results))
     goals = results["families"].get("goal_poses", {})
     if "poses_reached" in goals:
@@ -136,6 +144,21 @@ def _behaviours(ctx: typer.Context, ckpt: str, tasks: list[str] | None, episodes
     console.print(f"results in [bold]{out / 'behaviours.json'}[/]" + (f", contact sheets in [bold]{out / 'behaviours'}"
                                                                      "[/]" if isinstance(sheets, list) else
                                                                      f" ({sheets})"))
+
+
+def reward_refinement(generations: int, steps: int, seed: int) -> Refinement:
+    """`--refine`: a family's task prompt refined as `fbcpr prompt --refine` does, by the cross-entropy method over
+    rollouts scored by the task's reward."""
+    from fbcpr.eval.behaviours import REFINE_STARTS, Refinement
+    from fbcpr.inference.refine import Search, refine, reward_objective
+
+    def search(agent: Any, task: str, starts: tuple[np.ndarray, np.ndarray],
+               on_step: Callable[[int], None] | None) -> np.ndarray:
+        return refine(agent, agent.reward_z(task), reward_objective(task), starts, steps=steps,
+                      search=Search(generations=generations, seed=seed), on_step=on_step).z
+
+    population = Search(generations=generations).population
+    return Refinement(search, generations, (generations * population + 1) * REFINE_STARTS * steps)
 
 
 #: seconds per env step of the behaviour checks on 2 CPU cores (the model's prompts batched: 1.1 ms measured)

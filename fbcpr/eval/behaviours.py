@@ -249,14 +249,27 @@ def run_batch(agent: Any, batch: Batch, steps: int, on_obs: Watch, advance: Call
             env.close()
 
 
-#: refinement (`refine`): standing or fall starts each candidate z is rolled out from, apart from the checks' own
+#: refinement: standing or fall starts each candidate z is rolled out from, apart from the checks' own
 REFINE_STARTS = 8
+#: search(agent, task, starts, on_step) -> z: a task's prompt refined by rollouts from `starts`; `on_step(k)` hears
+#: of k candidate episodes stepped (the caller builds it, e.g. from `fbcpr.inference.refine`)
+Search = Callable[[Any, str, tuple[np.ndarray, np.ndarray], Callable[[int], None] | None], np.ndarray]
 
 
-def _prompts(agent: Any, fams: Sequence[Family], refine: int, steps: int, seed: int, num_threads: int | None,
+@dataclass(frozen=True)
+class Refinement:
+    """How each family's task prompt is refined before its checks: the search, its generations (for the record) and
+    the env steps it costs a prompt (for the progress bar)."""
+
+    search: Search
+    generations: int
+    env_steps: int
+
+
+def _prompts(agent: Any, fams: Sequence[Family], refine: Refinement | None, seed: int,
              on_refine: Callable[[int], None] | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """(z by prompt key, prompt key by family). A family's z is its task's prompt, refined by `refine` generations
-    of rollouts against the task's reward from starts of the family's own kind when `refine` > 0 (then keyed
+    """(z by prompt key, prompt key by family). A family's z is its task's prompt, refined from `REFINE_STARTS`
+    starts of the family's own kind (drawn apart from the checks') when `refine` is given (then keyed
     "TASK@START"); the goal family's are each pose's, keyed "goal:NAME". A floor has one empty z, keyed ""."""
     from humanoid_env.tasks import GOALS, goal_obs
 
@@ -270,32 +283,21 @@ def _prompts(agent: Any, fams: Sequence[Family], refine: int, steps: int, seed: 
             continue
         key = f"{f.prompt}@{f.start}" if refine else f.prompt
         key_of[f.name] = key
-        if key not in zs:
-            z = np.asarray(agent.reward_z(f.prompt), np.float32)
-            zs[key] = _refined(agent, z, f, refine, steps, seed, num_threads, on_refine) if refine else z
+        if key in zs:
+            continue
+        if refine is None:
+            zs[key] = np.asarray(agent.reward_z(f.prompt), np.float32)
+        else:
+            starts = start_states(REFINE_STARTS, seed + 1000)[f.start]
+            zs[key] = np.asarray(refine.search(agent, f.prompt, starts, on_refine), np.float32)
     return zs, key_of
 
 
-def _refined(agent: Any, z0: np.ndarray, f: Family, generations: int, steps: int, seed: int,
-             num_threads: int | None, on_step: Callable[[int], None] | None) -> np.ndarray:
-    """`fbcpr.inference.refine` of a family's task prompt, from starts of its kind drawn apart from the checks';
-    `on_step(k)` hears of k candidate episodes stepped."""
-    from fbcpr.inference.refine import Search, refine, reward_objective
-
-    starts = start_states(REFINE_STARTS, seed + 1000)[f.start]
-    return refine(agent, z0, reward_objective(f.prompt), starts, steps=steps,
-                  search=Search(generations=generations, seed=seed), num_threads=num_threads, on_step=on_step).z
-
-
-def refine_env_steps(fams: Sequence[Family], generations: int, steps: int) -> int:
+def refine_env_steps(fams: Sequence[Family], refine: Refinement | None) -> int:
     """Env steps that refining the families' prompts costs (each distinct task and start once)."""
-    from fbcpr.inference.refine import Search
-
-    if generations == 0:
+    if refine is None:
         return 0
-    search = Search(generations=generations)
-    prompts = {(f.prompt, f.start) for f in fams if f.judge is not None}
-    return len(prompts) * (search.generations * search.population + 1) * REFINE_STARTS * steps
+    return len({(f.prompt, f.start) for f in fams if f.judge is not None}) * refine.env_steps
 
 
 @dataclass
@@ -316,15 +318,16 @@ class AgentRun:
 
 
 def run_agent(agent: Any, fams: Sequence[Family], starts: dict[str, tuple[np.ndarray, np.ndarray]], steps: int,
-              advance: Callable[[int], None] = lambda n: None, num_threads: int | None = None, refine: int = 0,
-              seed: int = 0, on_refine: Callable[[int], None] | None = None) -> AgentRun:
+              advance: Callable[[int], None] = lambda n: None, num_threads: int | None = None,
+              refine: Refinement | None = None, seed: int = 0,
+              on_refine: Callable[[int], None] | None = None) -> AgentRun:
     """Every (prompt, start) of `fams` for `agent`, all episodes in one batch; a goal pose's episodes keep only
     their distance to the pose. With `refine`, each family's prompt is refined first (`_prompts`)."""
     from humanoid_env.model import NQ
     from humanoid_env.observation import OBS_DIM
     from humanoid_env.tasks import goal_obs
 
-    zs, key_of = _prompts(agent, fams, refine, steps, seed, num_threads, on_refine)
+    zs, key_of = _prompts(agent, fams, refine, seed, on_refine)
     keys = [(p, s) for p in zs for s in starts]
     episodes = len(starts["standing"][0])
     n = len(keys) * episodes
@@ -392,11 +395,10 @@ def estimate_env_steps(fams: Sequence[Family], episodes: int, steps: int, model:
 
 def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: int = 8, steps: int = 300,
           seed: int = 0, out: Path | None = None, show_progress: bool = True,
-          num_threads: int | None = None, refine: int = 0) -> dict[str, Any]:
+          num_threads: int | None = None, refine: Refinement | None = None) -> dict[str, Any]:
     """Run the behaviour families for each agent (the first is the one judged; the others, usually the zero and
     random floors, stand beside it) from the same starts, and with `out` write behaviours.json and one contact
-    sheet per family there. `refine` > 0 first refines each family's task prompt by that many generations of
-    rollouts (`fbcpr.inference.refine`; about 10 minutes a family on one core at 10), the goal poses' excepted."""
+    sheet per family there. With `refine`, each family's task prompt is refined first (the goal poses' are not)."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -415,8 +417,8 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
     runs: dict[str, AgentRun] = {}
     with progress_display(Console(stderr=True), *columns, disable=not show_progress) as progress:
         for name, agent in agents.items():
-            polish = refine if agent.z_dim > 0 else 0
-            tuning = progress.add_task("refine", total=refine_env_steps(fams, polish, steps)) if polish else None
+            polish = refine if agent.z_dim > 0 else None
+            tuning = progress.add_task("refine", total=refine_env_steps(fams, polish)) if polish else None
             bar = progress.add_task(name, total=estimate_env_steps(fams, episodes, steps, agent.z_dim > 0))
 
             def advance(k: int, bar: Any = bar) -> None:
@@ -428,7 +430,7 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
             runs[name] = run_agent(agent, fams, starts, steps, advance, num_threads, polish, seed, refined)
     judged = next(iter(agents))
     results: dict[str, Any] = {"agent": judged, "episodes": episodes, "steps": steps, "seed": seed,
-                               "refine": refine, "families": {}}
+                               "refine": refine.generations if refine else 0, "families": {}}
     for f in fams:
         per_agent = {name: {s: judge_family(f, run, s) for s in STARTS} for name, run in runs.items()}
         results["families"][f.name] = {"prompt": f.prompt, "start": f.start, "rule": f.rule, "need": f.need,
