@@ -74,8 +74,15 @@ def eval_command(
     from fbcpr.eval.runner import evaluate
     from fbcpr.inference.agents import make_agent
 
+    names = [n.strip() for t in tasks or [] for n in t.split(",") if n.strip()] or None
+    if quick:
+        if names is not None:
+            raise typer.BadParameter("--quick runs its own short list of tasks (every family with --suite "
+                                     "behaviours): give --quick or --tasks, not both")
+        episodes = episodes if given(ctx, "episodes") else QUICK_EPISODES
+        steps = steps if given(ctx, "steps") else QUICK_STEPS
     if suite == Suite.behaviours:
-        _behaviours(ctx, choose_model(ckpt, model), tasks, episodes, steps, out, seed, quick, refine)
+        _behaviours(ctx, choose_model(ckpt, model), names, episodes, steps, out, seed, refine)
         return
     if refine:
         raise typer.BadParameter("--refine applies to --suite behaviours (the benchmark's suites prompt zero-shot)")
@@ -85,14 +92,9 @@ def eval_command(
             raise typer.BadParameter(f"{', '.join(extra)}: reward and goal episodes only; the tracking suite plays "
                                      "each clip once, from its first frame")
     ckpt = choose_model(ckpt, model)
-    names = [n.strip() for t in tasks or [] for n in t.split(",") if n.strip()] or None
     library = _load_motions(motions)
     if quick:
-        if names is not None:
-            raise typer.BadParameter("--quick runs its own short list of tasks: give --quick or --tasks, not both")
         names = [*QUICK_TASKS, *library.names[:QUICK_CLIPS]]
-        episodes = episodes if given(ctx, "episodes") else QUICK_EPISODES
-        steps = steps if given(ctx, "steps") else QUICK_STEPS
     agent = make_agent(ckpt, seed=seed)
     try:
         results = evaluate(agent, suite.value, tasks=names, episodes=episodes, motions=library, out=out, steps=steps,
@@ -106,8 +108,8 @@ def eval_command(
     console.print(f"results and plots written to [bold]{out}[/]")
 
 
-def _behaviours(ctx: typer.Context, ckpt: str, tasks: list[str] | None, episodes: int, steps: int, out: Path,
-                seed: int, quick: bool, refine: int) -> None:
+def _behaviours(ctx: typer.Context, ckpt: str, names: list[str] | None, episodes: int, steps: int, out: Path,
+                seed: int, refine: int) -> None:
     """`--suite behaviours`: the agent and the zero and random floors from the same standing and fall starts."""
     from fbcpr.eval.behaviours import FAMILIES, check, estimate_env_steps, families, refine_env_steps, table
     from fbcpr.inference.agents import make_agent
@@ -116,12 +118,6 @@ def _behaviours(ctx: typer.Context, ckpt: str, tasks: list[str] | None, episodes
     if extra:
         raise typer.BadParameter(f"{', '.join(extra)}: the behaviour checks start from standing and fall states "
                                  "of their own and track no clips")
-    names = [n.strip() for t in tasks or [] for n in t.split(",") if n.strip()] or None
-    if quick:
-        if names is not None:
-            raise typer.BadParameter("--quick runs every family: give --quick or --tasks, not both")
-        episodes = episodes if given(ctx, "episodes") else QUICK_EPISODES
-        steps = steps if given(ctx, "steps") else QUICK_STEPS
     fams = families(names)
     agents = {name: make_agent(name, seed=seed) for name in dict.fromkeys((ckpt, "zero", "random"))}
     refinement = reward_refinement(refine, steps, seed) if refine else None

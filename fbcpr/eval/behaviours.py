@@ -18,8 +18,7 @@ from typing import Any
 import numpy as np
 
 from fbcpr.core.errors import InputError
-from fbcpr.eval.agents import action_mapping
-from fbcpr.eval.rollout import Step, rollout
+from fbcpr.eval.upright import FALLEN, STANDING, got_up
 from fbcpr.metrics import GOAL_BETA, d_smpl, goal_proximity, goal_success
 from humanoid_env.model import CONTROL_HZ
 from humanoid_env.tasks.features import Features
@@ -30,7 +29,6 @@ PASS_SHARE = 0.5
 CHUNK = 96
 #: the recorded observations grow with episodes x steps: 9,600 (32 episodes of 300 steps) keep ~250 MB
 MAX_EPISODE_STEPS = 9_600
-STANDING, FALLEN = 0.8, 0.6
 FLIGHT_CLEARANCE, JUMP_GAIN = 0.05, 0.15
 FEET = ("L_Ankle", "L_Toe", "R_Ankle", "R_Toe")
 
@@ -125,8 +123,8 @@ def _lie_up(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
 
 
 def _get_up(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    pelvis = _last(tr.z("Pelvis"), 1.0)
-    return np.asarray((pelvis > STANDING).all(0)), {"pelvis": pelvis.mean(0)}
+    pelvis = tr.z("Pelvis")
+    return got_up(pelvis), {"pelvis": _last(pelvis, 1.0).mean(0)}
 
 
 def _crouch(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -217,36 +215,39 @@ class Batch:
 
 
 #: what a batch's watcher gets after each step t (t = -1: the start): the slice of envs, their obs and qpos, and
-#: which of them diverged in that step (the env then restarts them, so their episode is over)
+#: which of them have diverged so far (the env restarts those, so their episode is over)
 Watch = Callable[[int, slice, np.ndarray, np.ndarray, np.ndarray], None]
 
 
 def run_batch(agent: Any, batch: Batch, steps: int, on_obs: Watch, advance: Callable[[int], None] = lambda n: None,
               num_threads: int | None = None) -> None:
-    """Roll out every env of `batch` for `steps` steps, `CHUNK` envs at a time (bounds the memory of the env);
-    `advance(n)` hears of the env steps done."""
-    from humanoid_env.vector import VectorHumanoidEnv
+    """Roll out every env of `batch` for `steps` steps, `CHUNK` envs at a time (bounds the memory of the env), on
+    the benchmark's `Rollouts`; `advance(n)` hears of the env steps done."""
+    from fbcpr.eval.runner import Rollouts
 
     n = len(batch.qpos)
     for lo in range(0, n, CHUNK):
         envs = slice(lo, min(n, lo + CHUNK))
-        env = VectorHumanoidEnv(envs.stop - lo, max_episode_steps=steps + 1, num_threads=num_threads,
-                                action_mapping=action_mapping(agent))
+        size = envs.stop - lo
+        roll = Rollouts(agent, size, steps, num_threads)
         try:
-            obs, _ = env.reset(options={"qpos": batch.qpos[envs], "qvel": batch.qvel[envs]})
-            on_obs(-1, envs, obs, batch.qpos[envs], np.zeros(envs.stop - lo, bool))
             z = batch.z[envs]
 
-            def act(t: int, o: np.ndarray, z: np.ndarray = z) -> np.ndarray:
-                return np.asarray(agent.act(o, z, mean=True), np.float32)
+            def start(obs: np.ndarray, envs: slice = envs) -> None:
+                on_obs(-1, envs, obs, batch.qpos[envs], np.zeros(obs.shape[0], bool))
 
-            def watch(step: Step, envs: slice = envs) -> None:
-                on_obs(step.t, envs, step.info["final_obs"], step.info["final_qpos"], step.info["diverged"])
-                advance(envs.stop - envs.start)
+            def step(t: int, info: dict[str, Any], alive: np.ndarray, envs: slice = envs) -> None:
+                on_obs(t, envs, info["final_obs"], info["final_qpos"], ~alive)
 
-            rollout(env, obs, act, steps, watch)
+            def z_at(t: int, z: np.ndarray = z) -> np.ndarray:
+                return z
+
+            def done(size: int = size) -> None:
+                advance(size)
+
+            roll.run(agent, z_at, batch.qpos[envs], batch.qvel[envs], step, done, on_start=start)
         finally:
-            env.close()
+            roll.close()
 
 
 #: refinement: standing or fall starts each candidate z is rolled out from, apart from the checks' own
@@ -389,7 +390,7 @@ def estimate_env_steps(fams: Sequence[Family], episodes: int, steps: int, model:
     """Env steps one agent simulates: every prompt from both starts (a floor: one prompt for all)."""
     from humanoid_env.tasks import GOALS
 
-    prompts = sum(len(GOALS) if f.name == "goal_poses" else 1 for f in fams) if model else 1
+    prompts = sum(len(GOALS) if f.judge is None else 1 for f in fams) if model else 1
     return prompts * len(STARTS) * episodes * steps
 
 
@@ -445,6 +446,8 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
     results["summary"] = {"passed": passed, "families_passed": len(passed), "of": len(fams)}
     if out is not None:
         results["sheets"] = write_sheets(fams, runs, out)
+        from fbcpr.eval.runner import write_json
+
         write_json(results, out, "behaviours.json")
     return results
 
@@ -504,20 +507,6 @@ def write_sheets(fams: Sequence[Family], runs: dict[str, AgentRun], out: Path, f
     finally:
         renderer.close()
     return written
-
-
-def write_json(results: dict[str, Any], out: Path, name: str) -> Path:
-    """`name` under `out`, replaced atomically."""
-    import json
-
-    from fbcpr.eval.report import json_safe
-
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / name
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(json_safe(results), indent=2, allow_nan=False))
-    tmp.replace(path)
-    return path
 
 
 def table(results: dict[str, Any]) -> Any:

@@ -50,10 +50,13 @@ class Rollouts:
         self.num_envs, self.steps = num_envs, steps
 
     def run(self, agent: Actor, z_at: Callable[[int], np.ndarray], qpos: np.ndarray, qvel: np.ndarray,
-            on_step: Callable[[int, dict[str, Any], np.ndarray], None], advance: Callable[[], None]) -> None:
-        """Roll out from (qpos, qvel); `on_step(t, info, alive)` sees every next state, in the step's
-        `info["final_obs"]`, `info["final_qpos"]` and `info["final_qvel"]`."""
+            on_step: Callable[[int, dict[str, Any], np.ndarray], None], advance: Callable[[], None],
+            on_start: Callable[[np.ndarray], None] | None = None) -> None:
+        """Roll out from (qpos, qvel); `on_start(obs)` sees the first observations, `on_step(t, info, alive)` every
+        next state, in the step's `info["final_obs"]`, `info["final_qpos"]` and `info["final_qvel"]`."""
         obs, _ = self.env.reset(options={"qpos": qpos, "qvel": qvel})
+        if on_start is not None:
+            on_start(obs)
         alive = np.ones(self.num_envs, bool)
 
         def watch(step: Step) -> None:
@@ -363,12 +366,12 @@ def write_results(results: dict[str, Any], out: Path) -> list[Path]:
     return [write_json(results, out), *plot_results(results, out)]
 
 
-def write_json(results: dict[str, Any], out: Path) -> Path:
-    """results.json, replaced atomically (also the partial results of a run still going)."""
+def write_json(results: dict[str, Any], out: Path, name: str = "results.json") -> Path:
+    """`name` under `out`, replaced atomically (also the partial results of a run still going)."""
     from fbcpr.eval.report import json_safe
 
     out.mkdir(parents=True, exist_ok=True)
-    path = out / "results.json"
+    path = out / name
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(json_safe(results), indent=2, allow_nan=False))
     tmp.replace(path)
