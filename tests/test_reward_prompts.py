@@ -180,7 +180,7 @@ def test_store_prompts_is_refused_for_a_model_without_the_humanoid_tasks(tmp_pat
 def test_reward_prompts_to_tensors_records_what_loading_checks():
     z = {"move-ego-0-0": np.ones(4, np.float32)}
     tensors, meta = RewardPrompts(z, 7, "abc").to_tensors()
-    assert meta == {"states": 7, "digest": "abc", "method": "weighted", "temperature": 10.0}
+    assert meta == {"states": 7, "digest": "abc", "method": "weighted", "temperature": 10.0, "refined": {}}
     assert torch.equal(tensors["move-ego-0-0"], torch.ones(4))
 
 
@@ -231,3 +231,100 @@ def test_stored_reward_answers_only_for_the_default_settings_of_a_stored_name(ex
     z = got.prompt.stored_reward(task)
     z[:] = 0  # a copy: the stored prompt is untouched
     assert np.any(got.prompt.reward(task) != 0)
+
+
+REFINE = ["--refine", "1", "--refine-population", "2", "--refine-starts", "1", "--refine-steps", "3"]
+
+
+@pytest.fixture(scope="module")
+def refined(exported, tmp_path_factory) -> tuple[Path, str]:
+    """The exported model again, with one stored prompt refined by a two-z search of 3-step episodes."""
+    _, _, out = exported
+    task = next(t for t in TASKS if t in BFM.load(out).reward_prompts.z)
+    dst = tmp_path_factory.mktemp("refined") / "model"
+    res = CliRunner().invoke(app, ["export", str(out), str(dst), "--reward-samples", "16", "--full",
+                                   "--refine-prompts", task, *REFINE])
+    assert res.exit_code == 0, res.output
+    assert f"refined {task}: mean reward on its starts" in res.output
+    return dst, task
+
+
+def test_a_refined_prompt_answers_by_default_and_keeps_its_zero_shot_z(exported, refined):
+    _, _, out = exported
+    dst, task = refined
+    before, got = BFM.load(out), BFM.load(dst)
+    record = got.reward_prompts.refined[task]
+    assert set(got.reward_prompts.refined) == {task}
+    assert {k: record[k] for k in ("generations", "population", "starts", "steps", "seed")} == {
+        "generations": 1, "population": 2, "starts": 1, "steps": 3, "seed": 0}
+    assert record["score"] >= record["score0"]  # the search keeps the best mean it scored, z0 among them
+    zero_shot = before.prompt.reward(task)
+    np.testing.assert_array_equal(got.prompt.reward(task, refined=False), zero_shot)
+    np.testing.assert_array_equal(got.prompt.reward(task), got.reward_prompts.z[task])
+    assert np.isclose(np.linalg.norm(got.prompt.reward(task)), np.sqrt(got.z_dim), rtol=1e-4)
+    for other in set(got.reward_prompts.z) - {task}:  # the others untouched
+        np.testing.assert_array_equal(got.prompt.reward(other), before.prompt.reward(other))
+        np.testing.assert_array_equal(got.prompt.reward(other, refined=False), before.prompt.reward(other))
+    again = BFM.load(got.save(dst.parent / "again"))  # the record travels with a save
+    np.testing.assert_array_equal(again.prompt.reward(task), got.prompt.reward(task))
+    np.testing.assert_array_equal(again.reward_prompts.refined[task]["z0"], zero_shot)
+    assert f"refined by rollouts: {task}" in got.save_for_hub(dst.parent / "hub").joinpath("README.md").read_text()
+
+
+def test_the_refined_z_is_the_one_prompt_refine_finds(exported, refined):
+    """The export's search and `fbcpr prompt --refine`'s are one search: the same starts, seed and z0."""
+    from fbcpr.inference.refine import Search, refine, reward_objective, standing_starts
+
+    _, _, out = exported
+    dst, task = refined
+    bfm = BFM.load(out)
+    got = refine(bfm, bfm.prompt.reward(task), reward_objective(task), standing_starts(1, 1), steps=3,
+                 search=Search(generations=1, population=2, seed=0))
+    np.testing.assert_allclose(BFM.load(dst).prompt.reward(task), got.z, atol=1e-6)
+
+
+def test_prompt_names_a_refined_prompt(refined):
+    dst, task = refined
+    res = CliRunner().invoke(app, ["prompt", str(dst), "--reward", task, "--steps", "3"])
+    assert res.exit_code == 0, res.output
+    assert "refined by 1 generations" in " ".join(res.output.split()), res.output  # the table may wrap after
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--refine", "2"], "--refine: only mean"),
+    (["--refine-prompts", "no-such-task"], "no-such-task not among the named tasks"),
+    (["--refine-prompts", "move-ego-0-0", "--refine-population", "4096", "--refine-starts", "2"], "more than 4096"),
+])
+def test_refine_prompts_options_are_checked_before_any_work(exported, tmp_path, args, match):
+    _, _, out = exported
+    res = CliRunner().invoke(app, ["export", str(out), str(tmp_path / "out"), *args])
+    assert res.exit_code != 0 and match in " ".join(res.output.split()), res.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_refining_needs_stored_prompts(exported, tmp_path):
+    model, _, _ = exported
+    res = CliRunner().invoke(app, ["export", str(model), str(tmp_path / "out"), "--refine-prompts", "move-ego-0-0",
+                                   *REFINE])
+    assert res.exit_code != 0 and "--store-prompts" in res.output
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("case, match", [
+    ("unstored", "stores no prompt"), ("key", "missing score"), ("z0", "finite"), ("type", "map task names"),
+])
+def test_malformed_refinement_records_are_named(refined, tmp_path, case, match):
+    dst, task = refined
+    tensors, meta = BFM.load(dst).reward_prompts.to_tensors()
+    if case == "unstored":
+        meta["refined"]["no-such-task"] = meta["refined"][task]
+    elif case == "key":
+        del meta["refined"][task]["score"]
+    elif case == "z0":
+        meta["refined"][task]["z0"] = meta["refined"][task]["z0"][:-1]
+    else:
+        meta["refined"] = [task]
+    bad = _resave(dst, tmp_path / case, (tensors, meta))
+    with pytest.raises(CheckpointError, match=match) as err:
+        BFM.load(bad)
+    assert PROMPTS_FILE in str(err.value)

@@ -1,14 +1,14 @@
 """`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample of states),
 optionally with its weights interpolated towards the model it was trained on from (`--interpolate BASE`), and with
-another model's reward states (`--reward-states-from MODEL`), and with the named tasks' reward prompts inferred from
-all of those states (`--store-prompts`)."""
+another model's reward states (`--reward-states-from MODEL`), with the named tasks' reward prompts inferred from
+all of those states (`--store-prompts`), and some of those refined by rollouts (`--refine-prompts TASKS`)."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import typer
 
-from fbcpr.cli.common import checkpoint_sources, cli_errors, console, given
+from fbcpr.cli.common import checkpoint_sources, cli_errors, console, given, progress
 
 
 @cli_errors
@@ -37,17 +37,45 @@ def export_command(
                                             "reward state before --reward-samples subsamples them, and store them "
                                             "for the prompts to use: z's that depend less on which states were "
                                             "kept (docs/usage.md)."),
+    refine_prompts: str | None = typer.Option(None, "--refine-prompts", metavar="TASKS",
+                                              help="Comma-separated named tasks whose stored prompts to refine by "
+                                                   "rollouts for their own reward (as fbcpr prompt --refine does), "
+                                                   "for tasks the regression prompts poorly; the zero-shot z is "
+                                                   "kept beside each (docs/usage.md)."),
+    refine: int = typer.Option(10, "--refine", min=1, help="With --refine-prompts: generations of the search."),
+    refine_starts: int = typer.Option(8, "--refine-starts", min=1,
+                                      help="With --refine-prompts: standing starts each candidate z is rolled out "
+                                           "from."),
+    refine_population: int = typer.Option(16, "--refine-population", min=2,
+                                          help="With --refine-prompts: z's rolled out per generation."),
+    refine_steps: int = typer.Option(300, "--refine-steps", min=1,
+                                     help="With --refine-prompts: episode length in control steps (30 Hz)."),
+    refine_seed: int = typer.Option(0, "--refine-seed",
+                                    help="With --refine-prompts: seed of the search (its starts: seed + 1)."),
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.core.errors import InputError
     from fbcpr.core.paths import check_output_folder
     from fbcpr.inference.bfm import BFM
     from fbcpr.inference.interpolation import interpolate, with_reward_states
-    from fbcpr.inference.reward_prompts import infer_reward_prompts
+    from fbcpr.inference.refine import MAX_ENVS, Search
+    from fbcpr.inference.reward_prompts import infer_reward_prompts, refine_reward_prompts
     from humanoid_env.tasks.rewards import TASKS
 
     if given(ctx, "alpha") and interpolate_from is None:
         raise InputError("--alpha: only means something with --interpolate BASE")
+    refining = [t.strip() for t in refine_prompts.split(",") if t.strip()] if refine_prompts is not None else []
+    loose = [f"--{n.replace('_', '-')}" for n in ("refine", "refine_starts", "refine_population", "refine_steps",
+                                                  "refine_seed") if given(ctx, n)]
+    if loose and not refining:
+        raise InputError(f"{', '.join(loose)}: only mean something with --refine-prompts TASKS")
+    unknown = [t for t in refining if t not in TASKS]
+    if unknown:
+        raise InputError(f"--refine-prompts: {', '.join(unknown)} not among the named tasks (fbcpr tasks lists them)")
+    search = Search(generations=refine, population=refine_population, seed=refine_seed)
+    if refine_population * refine_starts > MAX_ENVS:
+        raise InputError(f"--refine-population x --refine-starts = {refine_population * refine_starts} envs a "
+                         f"generation, more than {MAX_ENVS}")
     sources = [*checkpoint_sources("the checkpoint to export", checkpoint),
                *checkpoint_sources("--interpolate", interpolate_from)]
     for src in reward_states_from or []:
@@ -67,6 +95,15 @@ def export_command(
         left_out = [t for t in TASKS if t not in bfm.reward_prompts.z]
         console.print(f"inferred {len(bfm.reward_prompts.z)} reward prompts from {bfm.reward_prompts.states:,} states"
                       + (f"; left out (they pay nothing on these states): {', '.join(left_out)}" if left_out else ""))
+    if refining:
+        with progress() as bar:
+            task = bar.add_task(f"refining {len(refining)} prompts",
+                                total=len(refining) * (refine * refine_population + 1) * refine_steps)
+            bfm.reward_prompts = refine_reward_prompts(bfm, refining, search, refine_starts, refine_steps,
+                                                       on_step=lambda k: bar.advance(task, k))
+        for name in refining:
+            rec = bfm.reward_prompts.refined[name]
+            console.print(f"refined {name}: mean reward on its starts {rec['score0']:.3f} -> {rec['score']:.3f}")
     path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
     sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
     for name, size in sizes.items():

@@ -134,12 +134,11 @@ def write_frames(ep: Episode, path: Path) -> None:
 def _refine(bfm: Any, z0: np.ndarray, target: Any, steps: int, seed: int, generations: int, population: int,
             n_starts: int) -> Any:
     """z0 refined by rollouts from standing starts drawn with seed + 1 (apart from the shown episode's start)."""
-    from fbcpr.inference.refine import Search, goal_objective, refine, reward_objective
-    from humanoid_env.inits import DefaultInit
+    from fbcpr.inference.refine import Search, goal_objective, refine, reward_objective, standing_starts
 
     search = Search(generations=generations, population=population, seed=seed)
     objective = reward_objective(target) if isinstance(target, str) else goal_objective(target)
-    starts = DefaultInit().sample(np.random.default_rng(seed + 1), n_starts)
+    starts = standing_starts(n_starts, seed + 1)
     with progress() as bar:
         task = bar.add_task("refine", total=(search.generations * search.population + 1) * steps)
         return refine(bfm, z0, objective, starts, steps=steps, search=search,
@@ -242,6 +241,10 @@ def prompt_command(
         stored = bfm.prompt.stored_reward(reward, method=method or "weighted")
         source = (f"stored at export (from {bfm.reward_prompts.states:,} states)" if stored is not None
                   else "inferred from the checkpoint's reward states")
+        record = bfm.reward_prompts.refined.get(reward) if stored is not None else None
+        if record is not None:
+            source += (f", refined by {record['generations']} generations of rollouts (mean reward "
+                       f"{record['score0']:.3f} -> {record['score']:.3f})")
         rows += [("return", f"{r.sum():.2f}"), ("mean reward", f"{r.mean() if len(r) else 0.0:.3f}"),
                  ("reward prompt", source)]
     elif goal is not None:

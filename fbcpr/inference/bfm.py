@@ -484,6 +484,8 @@ def model_card(bfm: BFM, metrics: dict[str, float], repo_id: str) -> str:
     prompts = bfm.reward_prompts
     stored = (f"\n- stored reward prompts: {len(prompts.z)} named tasks, inferred from {prompts.states:,} states"
               if prompts is not None else "")
+    if prompts is not None and prompts.refined:
+        stored += f"; refined by rollouts: {', '.join(sorted(prompts.refined))}"
     return f"""---
 {data.to_yaml()}
 ---

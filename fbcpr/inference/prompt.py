@@ -5,8 +5,8 @@ sqrt(d) sphere that the policy was trained on:
 
 - reward: weighted regression z ∝ Σ exp(τ r(s')) r(s') B(s') over the checkpoint's reward-inference buffer
   (τ = 10, up to 100k samples), or the plain FB regression z ∝ Σ r(s') B(s'). A checkpoint may store the z's of
-  the named tasks, regressed at export on more states than it keeps (`fbcpr.inference.reward_prompts`): those answer by
-  default;
+  the named tasks, regressed at export on more states than it keeps, some refined by rollouts
+  (`fbcpr.inference.reward_prompts`): those answer by default;
 - goal: z = B(g), with zero velocities when the goal is a pose (the paper's, `backward`); or the goal as a reward
   on the reward-inference buffer, r(s') = exp(-d_smpl(s', g) / 2), inferred as a reward is (`states`): states
   the model visited, where B(g) of a motionless pose is not; or the projected sum of both (`mix`);
@@ -51,6 +51,8 @@ class StoredPrompts(Protocol):
 
     @property
     def z(self) -> dict[str, np.ndarray]: ...
+
+    def zero_shot(self, task: str) -> np.ndarray | None: ...
 
 
 class PromptableModel(Protocol):
@@ -105,11 +107,13 @@ class Prompt:
         n: int = N_REWARD_SAMPLES,
         temperature: float = TEMPERATURE,
         seed: int = 0,
+        refined: bool = True,
     ) -> np.ndarray:
         """z for a reward: relabel up to n buffer samples (next state) with the reward, then regress on B.
 
         A named task under these default settings returns the z the checkpoint stores for it, if any: inferred at
-        export from every state given, more than the checkpoint keeps (`fbcpr.inference.reward_prompts`)."""
+        export from every state given, more than the checkpoint keeps, and refined by rollouts for some tasks
+        unless `refined` is False (`fbcpr.inference.reward_prompts`)."""
         if method not in ("weighted", "regression"):
             raise PromptError(f"unknown reward inference method {method!r}: use 'weighted' or 'regression'")
         fn, label = reward_fn(task)
@@ -118,7 +122,7 @@ class Prompt:
         if method == "weighted" and not (isinstance(temperature, (int, float)) and np.isfinite(temperature)
                                          and temperature >= 0):
             raise PromptError(f"temperature: must be a finite number >= 0, got {temperature!r}")
-        stored = self.stored_reward(task, method, n, temperature, seed)
+        stored = self.stored_reward(task, method, n, temperature, seed, refined)
         if stored is not None:
             return stored
         if self.bfm.reward_buffer is None:
@@ -134,15 +138,16 @@ class Prompt:
         n: int = N_REWARD_SAMPLES,
         temperature: float = TEMPERATURE,
         seed: int = 0,
+        refined: bool = True,
     ) -> np.ndarray | None:
         """The z the checkpoint stores for a named task (`fbcpr.inference.reward_prompts`), which `reward` returns under
-        these default settings; None for other settings, a callable, a combined or unstored name, or no stored
-        prompts."""
+        these default settings (its zero-shot z when `refined` is False); None for other settings, a callable, a
+        combined or unstored name, or no stored prompts."""
         stored = self.bfm.reward_prompts
         if stored is None or not isinstance(task, str) or (method, n, temperature, seed) != (
                 "weighted", N_REWARD_SAMPLES, TEMPERATURE, 0):
             return None
-        z = stored.z.get(task.strip())
+        z = stored.z.get(task.strip()) if refined else stored.zero_shot(task.strip())
         return None if z is None else z.copy()
 
     # ------------------------------------------------------------------------------------------- goals

@@ -143,6 +143,15 @@ def cross_entropy(score: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, sea
                    episodes=0, history=history)
 
 
+def standing_starts(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(qpos, qvel) of n standing starts (the env's default init) drawn with `seed`: where z's are rolled out."""
+    from humanoid_env.inits import DefaultInit
+
+    if n < 1:
+        raise PromptError(f"refine: starts must be >= 1, got {n}")
+    return DefaultInit().sample(np.random.default_rng(seed), n)
+
+
 def rollout_score(policy: Policy, objective: Objective, starts: tuple[np.ndarray, np.ndarray], steps: int,
                   num_threads: int | None = None, on_step: Callable[[int], None] | None = None
                   ) -> Callable[[np.ndarray], np.ndarray]:

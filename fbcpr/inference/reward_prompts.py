@@ -8,14 +8,18 @@ every state given to the export (e.g. 500,000 from ten rollout runs), and the ch
 reward_prompts.safetensors beside its subsample. `Prompt.reward` returns the stored z for a named task under the default
 inference settings; a user's reward, a combined name or other settings are inferred from the subsample as before.
 
+Some named tasks are prompted better by a nearby z than by the regression: a prompt can be refined by rollouts
+(`fbcpr.inference.refine`, `fbcpr export --refine-prompts`). A refined task's stored z is the refined one; the
+metadata keeps the regression's z beside it (`Prompt.reward(task, refined=False)` answers it) and how the search ran.
+
 The z's belong to the weights they were inferred with: their metadata records a digest of the model's tensors,
 a checkpoint whose weights do not match it is refused on load, and a save after the weights changed drops them.
 """
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
@@ -25,6 +29,7 @@ import torch
 from fbcpr.core.checkpoint import PROMPTS_FILE, CheckpointError
 from fbcpr.core.errors import InputError, PromptError
 from fbcpr.inference.prompt import PromptableModel, regress_reward, reward_fn
+from fbcpr.inference.refine import Search, refine, reward_objective, standing_starts
 from fbcpr.nn.latents import TEMPERATURE
 
 if TYPE_CHECKING:
@@ -39,18 +44,30 @@ MAX_STATES = 1_000_000
 MAX_PROMPTS = 4096
 
 
+#: What a refined prompt's record holds besides its zero-shot z: the search's settings and its scores.
+REFINEMENT_KEYS: Final = ("generations", "population", "starts", "steps", "seed", "score0", "score")
+
+
 @dataclass(frozen=True)
 class RewardPrompts:
-    """z (on the model's sphere) per task name, the number of states they were inferred from, and the digest of
-    the weights they belong to."""
+    """z (on the model's sphere) per task name, the number of states they were inferred from, the digest of
+    the weights they belong to, and for each refined task its record: the zero-shot z ("z0") and REFINEMENT_KEYS."""
 
     z: dict[str, np.ndarray]
     states: int
     digest: str
+    refined: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def zero_shot(self, task: str) -> np.ndarray | None:
+        """The regression's z for a stored task, refined or not; None for a task not stored."""
+        if task in self.refined:
+            return np.asarray(self.refined[task]["z0"], dtype=np.float32)
+        return self.z.get(task)
 
     def to_tensors(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """What `save_checkpoint(reward_prompts=...)` writes: one tensor per task and the JSON metadata."""
-        meta = {"states": self.states, "digest": self.digest, "method": METHOD, "temperature": TEMPERATURE}
+        meta = {"states": self.states, "digest": self.digest, "method": METHOD, "temperature": TEMPERATURE,
+                "refined": {task: {**rec, "z0": [float(v) for v in rec["z0"]]} for task, rec in self.refined.items()}}
         return {name: torch.as_tensor(z) for name, z in self.z.items()}, meta
 
 
@@ -119,4 +136,52 @@ def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], 
         except PromptError as err:
             raise CheckpointError(f"{file}: {err}") from None
         z[name] = t.float().cpu().numpy()
-    return RewardPrompts(z, states, meta["digest"])
+    return RewardPrompts(z, states, meta["digest"], _refined(meta.get("refined", {}), z, z_dim, file))
+
+
+def _refined(records: Any, z: dict[str, np.ndarray], z_dim: int, file: Path) -> dict[str, dict[str, Any]]:
+    """The refinement records of stored metadata, each checked: a stored task, every key, a finite (z_dim,) z0."""
+    if not isinstance(records, dict):
+        raise CheckpointError(f"{file}: metadata 'refined' must map task names to records, "
+                              f"got {type(records).__name__}")
+    out = {}
+    for task, rec in records.items():
+        if task not in z:
+            raise CheckpointError(f"{file}: a refinement is recorded for {task!r}, which stores no prompt")
+        missing = [k for k in ("z0", *REFINEMENT_KEYS) if not isinstance(rec, dict) or k not in rec]
+        if missing:
+            raise CheckpointError(f"{file}: the refinement of {task!r} is missing {', '.join(missing)}")
+        z0 = np.asarray(rec["z0"], dtype=np.float64)
+        if z0.shape != (z_dim,) or not np.all(np.isfinite(z0)):
+            raise CheckpointError(f"{file}: the refinement of {task!r} must keep a finite ({z_dim},) z0")
+        if not all(isinstance(rec[k], (int, float)) and np.isfinite(rec[k]) for k in REFINEMENT_KEYS):
+            raise CheckpointError(f"{file}: the refinement of {task!r} has a non-numeric setting or score")
+        out[task] = {**{k: rec[k] for k in REFINEMENT_KEYS}, "z0": z0.astype(np.float32)}
+    return out
+
+
+def refine_reward_prompts(bfm: Any, tasks: Sequence[str], search: Search, starts: int, steps: int,
+                          num_threads: int | None = None,
+                          on_step: Callable[[int], None] | None = None) -> RewardPrompts:
+    """`bfm`'s stored prompts with each of `tasks` refined by rollouts for its own reward from `starts` standing
+    starts (drawn with `search.seed` + 1, as `fbcpr prompt --refine` draws them), starting from the zero-shot z.
+
+    A task whose refined z scores no better on those starts than its zero-shot z keeps the zero-shot z (the search
+    returns the best mean it scored, z0 included). Raises PromptError for a task that is not stored."""
+    stored: RewardPrompts | None = bfm.reward_prompts
+    if stored is None:
+        raise PromptError("refining stored prompts needs stored prompts: export with --store-prompts too")
+    missing = [t for t in tasks if t not in stored.z]
+    if missing:
+        raise PromptError(f"no stored prompt to refine for {', '.join(missing)} (stored: the named tasks the "
+                          "reward states pay; `fbcpr tasks` lists the names)")
+    z, refined = dict(stored.z), dict(stored.refined)
+    for task in tasks:
+        z0 = stored.zero_shot(task)
+        assert z0 is not None  # stored, checked above
+        got = refine(bfm, z0, reward_objective(task), standing_starts(starts, search.seed + 1), steps=steps,
+                     search=search, num_threads=num_threads, on_step=on_step)
+        z[task] = got.z
+        refined[task] = {"generations": search.generations, "population": search.population, "starts": starts,
+                         "steps": steps, "seed": search.seed, "score0": got.score0, "score": got.score, "z0": z0}
+    return replace(stored, z=z, refined=refined)
