@@ -328,3 +328,25 @@ def test_malformed_refinement_records_are_named(refined, tmp_path, case, match):
     with pytest.raises(CheckpointError, match=match) as err:
         BFM.load(bad)
     assert PROMPTS_FILE in str(err.value)
+
+
+def test_the_reward_suite_marks_a_refined_prompt(refined, exported, tmp_path):
+    import json
+
+    dst, task = refined
+    other = next(t for t in BFM.load(dst).reward_prompts.z if t != task)
+    res = CliRunner().invoke(app, ["eval", str(dst), "--suite", "reward", "--tasks", f"{task},{other}",
+                                   "--episodes", "1", "--steps", "3", "--out", str(tmp_path / "eval")])
+    assert res.exit_code == 0, res.output
+    got = json.loads((tmp_path / "eval" / "results.json").read_text())["reward"]
+    assert got[task]["prompt"] == "refined" and got[other]["prompt"] == "zero-shot"
+
+
+def test_the_behaviour_checks_name_the_refined_prompts_they_ran(refined):
+    from fbcpr.eval.behaviours import check, table
+
+    dst, task = refined
+    assert task == "move-ego-0-0"  # the first named task: the prompt of the stand family
+    got = check({"model": BFM.load(dst)}, ["stand", "jump"], episodes=1, steps=60, show_progress=False)
+    assert got["refined_prompts"] == ["move-ego-0-0"]
+    assert "stored prompts refined at export: move-ego-0-0" in " ".join(str(table(got).title).split())

@@ -404,6 +404,7 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from fbcpr.core.progress import progress_display
+    from fbcpr.eval.runner import refined_prompts
 
     fams = families(names)
     if episodes < 1 or episodes * steps > MAX_EPISODE_STEPS:
@@ -431,7 +432,9 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
             runs[name] = run_agent(agent, fams, starts, steps, advance, num_threads, polish, seed, refined)
     judged = next(iter(agents))
     results: dict[str, Any] = {"agent": judged, "episodes": episodes, "steps": steps, "seed": seed,
-                               "refine": refine.generations if refine else 0, "families": {}}
+                               "refine": refine.generations if refine else 0,
+                               "refined_prompts": sorted(refined_prompts(agents[judged]) & {f.prompt for f in fams}),
+                               "families": {}}
     for f in fams:
         per_agent = {name: {s: judge_family(f, run, s) for s in STARTS} for name, run in runs.items()}
         results["families"][f.name] = {"prompt": f.prompt, "start": f.start, "rule": f.rule, "need": f.need,
@@ -515,6 +518,8 @@ def table(results: dict[str, Any]) -> Any:
 
     agents = list(next(iter(results["families"].values()))["agents"])
     refined = f", prompts refined by {results['refine']} generations" if results.get("refine") else ""
+    if results.get("refined_prompts"):
+        refined += f", stored prompts refined at export: {', '.join(results['refined_prompts'])}"
     t = Table(title=f"behaviour checks: {results['episodes']} episodes of {results['steps'] / CONTROL_HZ:g} s, "
                     f"seed {results['seed']}{refined}")
     t.add_column("family")

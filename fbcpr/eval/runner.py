@@ -101,6 +101,13 @@ def _prompt(report: Report, suite: str, name: str, make_z: Callable[[], np.ndarr
         return None
 
 
+def refined_prompts(agent: Agent) -> set[str]:
+    """Named tasks whose stored prompt the agent's checkpoint refined by rollouts (`fbcpr export --refine-prompts`):
+    results mark them, since those z's are not zero-shot."""
+    prompts = getattr(agent, "reward_prompts", None)
+    return set(getattr(prompts, "refined", {}))
+
+
 def _initial_states(episodes: int, fall_prob: float, motions: Any, seed: int) -> tuple[np.ndarray, np.ndarray]:
     from humanoid_env.inits import make_init
 
@@ -115,6 +122,7 @@ def reward_suite(agent: Agent, tasks: Sequence[str], episodes: int, init: tuple[
     from humanoid_env.tasks import get_reward, task_category
 
     fns = [get_reward(t) for t in tasks]  # fail on a bad name before any simulation
+    refined = refined_prompts(agent)
     bar = progress.add_task("reward", total=len(tasks) * steps)
     roll = Rollouts(agent, episodes, steps, num_threads)
     out: dict[str, Any] = {}
@@ -132,7 +140,8 @@ def reward_suite(agent: Agent, tasks: Sequence[str], episodes: int, init: tuple[
 
             roll.run(agent, lambda t: z, *init, score, lambda: progress.advance(bar))
             out[task] = {"category": task_category(task), "return_mean": float(ret.mean()),
-                         "return_std": float(ret.std()), "returns": ret.tolist()}
+                         "return_std": float(ret.std()), "returns": ret.tolist(),
+                         "prompt": "refined" if task in refined else "zero-shot"}
             report.result("reward", task, out[task])
     finally:
         roll.close()
