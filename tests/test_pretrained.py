@@ -54,7 +54,7 @@ def test_demo_prompts_the_pretrained_model(tmp_path):
     assert prompts == [("reward move-ego-0-2, standing starts", "return"),
                        ("reward move-ego-0-0, pushed starts", "share held"), ("track walk", "EMD")]
     verdict = " ".join(summary["verdict"].split())
-    for cannot in ("get up", "jump", "rotate in place", "raise both arms high"):  # said plainly, not shown
+    for cannot in ("get up", "jump", "rotate in place", "sit upright"):  # said plainly, not shown
         assert cannot in verdict, cannot
     assert "\n\n\n" not in res.output  # no runs of blank lines
 
@@ -67,8 +67,25 @@ def test_stored_reward_prompts_are_the_ones_its_states_give():
     assert stored is not None and set(stored.z) == set(TASKS) and stored.states == len(bfm.reward_buffer["qpos"])
     # They were inferred at export from the same 50,000 states in float32, before the kept copy was rounded to
     # float16: the z's the kept states give agree to a cosine of 0.99999 (another draw of states: ~0.95).
-    for task in ("move-ego-0-0", "move-ego-0-2", "split-1", "raisearms-m-h"):
+    for task in ("move-ego-0-0", "move-ego-0-2", "split-1", "raisearms-m-h", *REFINED):
         from_states = bfm.prompt.reward(task, n=10**6)   # n past the sample: inferred from every state, not stored
-        z = bfm.prompt.reward(task)
-        np.testing.assert_array_equal(z, stored.z[task])  # the stored z is the one answered
+        z = bfm.prompt.reward(task, refined=False)
+        np.testing.assert_array_equal(z, stored.zero_shot(task))  # the stored zero-shot z is the one answered
         assert z @ from_states / (np.linalg.norm(z) * np.linalg.norm(from_states)) > 0.9999, task
+
+
+#: the tasks whose shipped prompts were refined by rollouts at export (model card, "Stored reward prompts")
+REFINED = ("move-ego-0-4", "raisearms-h-h", "sitonground")
+
+
+def test_three_shipped_prompts_are_refined_and_keep_their_zero_shot_z():
+    bfm = BFM.pretrained()
+    stored = bfm.reward_prompts
+    assert sorted(stored.refined) == list(REFINED)
+    for task in REFINED:
+        record, z, z0 = stored.refined[task], bfm.prompt.reward(task), bfm.prompt.reward(task, refined=False)
+        np.testing.assert_array_equal(z, stored.z[task])
+        assert 0.8 < z @ z0 / bfm.z_dim < 0.99, task  # a nearby z, not the zero-shot one
+        assert (record["generations"], record["population"], record["starts"], record["steps"], record["seed"]) == (
+            15, 16, 16, 300, 3)
+        assert record["score"] > record["score0"] + 0.3, task  # the mean reward per step on its search starts
