@@ -303,10 +303,14 @@ def test_refine_prompts_options_are_checked_before_any_work(exported, tmp_path, 
 
 
 def test_refining_needs_stored_prompts(exported, tmp_path):
-    model, _, _ = exported
+    model, _, out = exported
     res = CliRunner().invoke(app, ["export", str(model), str(tmp_path / "out"), "--refine-prompts", "move-ego-0-0",
                                    *REFINE])
     assert res.exit_code != 0 and "--store-prompts" in res.output
+    assert not (tmp_path / "out").exists()
+    unstored = next(t for t in TASKS if t not in BFM.load(out).reward_prompts.z)  # its states pay this task nothing
+    res = CliRunner().invoke(app, ["export", str(out), str(tmp_path / "out"), "--refine-prompts", unstored, *REFINE])
+    assert res.exit_code != 0 and f"no stored prompt to refine for {unstored}" in " ".join(res.output.split())
     assert not (tmp_path / "out").exists()
 
 
