@@ -73,6 +73,12 @@ def given(ctx: typer.Context, name: str) -> bool:
     return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
 
 
+def comma_names(values: str | list[str] | None) -> list[str]:
+    """Names given comma-separated, in one option or a repeated one (`--tasks a,b --tasks c`), blanks dropped."""
+    texts = [values] if isinstance(values, str) else values or []
+    return [n.strip() for t in texts for n in t.split(",") if n.strip()]
+
+
 def checkpoint_sources(arg: str, value: str | Path | None) -> list[tuple[str, Path]]:
     """The local folders a checkpoint argument reads, as (argument, path) pairs for
     `fbcpr.core.paths.check_output_folder`: the path given (a run directory, a pointer file) and the checkpoint it

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from fbcpr.cli.common import MODEL_HELP, choose_model, cli_errors, console, err_console, given
+from fbcpr.cli.common import MODEL_HELP, choose_model, cli_errors, comma_names, console, err_console, given
 
 if TYPE_CHECKING:
     import numpy as np
@@ -74,7 +74,7 @@ def eval_command(
     from fbcpr.eval.runner import evaluate
     from fbcpr.inference.agents import make_agent
 
-    names = [n.strip() for t in tasks or [] for n in t.split(",") if n.strip()] or None
+    names = comma_names(tasks) or None
     if quick:
         if names is not None:
             raise typer.BadParameter("--quick runs its own short list of tasks (every family with --suite "

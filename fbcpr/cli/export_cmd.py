@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from fbcpr.cli.common import checkpoint_sources, cli_errors, console, given, progress
+from fbcpr.cli.common import checkpoint_sources, cli_errors, comma_names, console, given, progress
 
 
 @cli_errors
@@ -64,7 +64,7 @@ def export_command(
 
     if given(ctx, "alpha") and interpolate_from is None:
         raise InputError("--alpha: only means something with --interpolate BASE")
-    refining = [t.strip() for t in refine_prompts.split(",") if t.strip()] if refine_prompts is not None else []
+    refining = comma_names(refine_prompts)
     loose = [f"--{n.replace('_', '-')}" for n in ("refine", "refine_starts", "refine_population", "refine_steps",
                                                   "refine_seed") if given(ctx, n)]
     if loose and not refining:

@@ -241,7 +241,7 @@ def prompt_command(
         stored = bfm.prompt.stored_reward(reward, method=method or "weighted")
         source = (f"stored at export (from {bfm.reward_prompts.states:,} states)" if stored is not None
                   else "inferred from the checkpoint's reward states")
-        record = bfm.reward_prompts.refined.get(reward) if stored is not None else None
+        record = bfm.reward_prompts.refined.get(reward.strip()) if stored is not None else None
         if record is not None:
             source += (f", refined by {record['generations']} generations of rollouts (mean reward "
                        f"{record['score0']:.3f} -> {record['score']:.3f})")
