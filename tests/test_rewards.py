@@ -5,8 +5,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from humanoid_env.model import NV, load_model
-from humanoid_env.observation import OBS_DIM, observe
+from humanoid_env.model import BODY_NAMES, NV, load_model
+from humanoid_env.observation import BODY_POS, OBS_DIM, observe
 from humanoid_env.tasks import CATEGORIES, TASKS, get_reward, goal_qpos, list_families, task_category
 from humanoid_env.tasks.features import Features
 from humanoid_env.tasks.goals import ARMS_DOWN, ARMS_FORWARD, GoalPose, _merge, pose_qpos
@@ -127,6 +127,16 @@ def test_ground_poses():
     assert r("sitonground", state(STAND)) < 0.01
     wide = state(goal_qpos("kneel_left"))  # ankles 0.78 m apart, pelvis at 0.58 m
     assert r("split-0.5", wide) > r("split-1", wide) > r("split-0.5", state(STAND)) + 0.3
+
+
+def test_sitonground_asks_the_head_up():
+    seat = state(goal_qpos("sit_straddle"))  # head 0.69 m
+    assert r("sitonground", seat) > 0.95
+    head_z = BODY_POS.start + 3 * (BODY_NAMES.index("Head") - 1) + 2
+    curled = np.repeat(seat[None], 3, 0)  # the same seat with the head lowered: a body curled over its knees
+    curled[:, head_z] -= [0.11, 0.26, 0.45]  # head at 0.58, 0.43 and 0.24 m
+    values = get_reward("sitonground")(curled)
+    assert values[0] > 0.95 and 0.4 < values[1] < 0.6 and values[2] == 0.0, values
 
 
 def test_jump_rotation_handstand_crawl():

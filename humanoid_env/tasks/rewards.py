@@ -29,6 +29,7 @@ class RewardFn(Protocol):
 # Thresholds for our 1.7 m body (head origin 1.57 m, shoulders 1.43 m, pelvis 0.965 m when standing).
 STAND_HEAD = 1.4          # head height that counts as standing
 LOW_PELVIS = (0.45, 0.7)  # pelvis band for low locomotion
+SIT_HEAD = 0.58           # head height of an upright seat on the floor
 ARM_BANDS = {"l": (0.0, 1.0, 0.2), "m": (1.3, 1.55, 0.1), "h": (1.8, np.inf, 0.2)}  # wrist z (lo, hi, margin)
 
 
@@ -203,14 +204,16 @@ class Crouch(_Reward):
 
 @dataclass(frozen=True)
 class SitOnGround(_Reward):
-    """Kneel-sit: both knees on the floor, pelvis below 0.5 m, torso upright, still."""
+    """Sit on the floor (kneel-sit or legs forward): both knees on the floor, pelvis below 0.5 m, torso upright,
+    head up (a body curled over its knees is not sitting: the paper's reference reward asks the head 0.58 m up), still."""
 
     name: str = "sitonground"
 
     def compute(self, f: Features) -> np.ndarray:
         knees = _tol(np.maximum(f.z("L_Knee"), f.z("R_Knee")), 0.0, 0.12, 0.3)
         low = _tol(f.z("Pelvis"), 0.0, 0.5, 0.4)
-        return knees * low * _upright(f, lo=0.7, margin=0.7) * _still(f)
+        head = _tol(f.z("Head"), SIT_HEAD, np.inf, 0.3)
+        return knees * low * head * _upright(f, lo=0.7, margin=0.7) * _still(f)
 
 
 @dataclass(frozen=True)
