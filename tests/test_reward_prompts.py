@@ -6,14 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import tiny_humanoid_checkpoint
 from typer.testing import CliRunner
 
-from conftest import tiny_humanoid_checkpoint
 from fbcpr import BFM
-from fbcpr.core.checkpoint import PROMPTS_FILE, CheckpointError, load_checkpoint, save_checkpoint
 from fbcpr.cli.app import app
-from fbcpr.inference.interpolation import interpolate, with_reward_states
+from fbcpr.core.checkpoint import PROMPTS_FILE, CheckpointError, load_checkpoint, save_checkpoint
 from fbcpr.core.errors import PromptError
+from fbcpr.inference.interpolation import interpolate, with_reward_states
 from fbcpr.inference.reward_prompts import RewardPrompts, infer_reward_prompts, weights_digest
 from humanoid_env.tasks.rewards import TASKS
 
@@ -116,7 +116,7 @@ def test_prompts_of_other_weights_are_refused_on_load(exported, tmp_path):
 
 @pytest.mark.parametrize("case, match", [
     ("nan", "finite"), ("shape", "finite"), ("name", "unknown|not"), ("temperature", "temperature"),
-    ("states", "states"), ("many", "at most 3"),
+    ("states", "states"), ("many", "at most 3"), ("revisions", "'revisions' must map stored task names"),
 ])
 def test_malformed_stored_prompts_are_named(exported, tmp_path, monkeypatch, case, match):
     import fbcpr.inference.reward_prompts as rp
@@ -136,6 +136,8 @@ def test_malformed_stored_prompts_are_named(exported, tmp_path, monkeypatch, cas
         meta["temperature"] = 3.0
     elif case == "states":
         meta["states"] = 0
+    elif case == "revisions":
+        meta["revisions"] = {"no-such-task": {"sitonground": 1}}
     bad = _resave(out, tmp_path / case, (tensors, meta))
     with pytest.raises(CheckpointError, match=match) as err:
         BFM.load(bad)
@@ -180,7 +182,8 @@ def test_store_prompts_is_refused_for_a_model_without_the_humanoid_tasks(tmp_pat
 def test_reward_prompts_to_tensors_records_what_loading_checks():
     z = {"move-ego-0-0": np.ones(4, np.float32)}
     tensors, meta = RewardPrompts(z, 7, "abc").to_tensors()
-    assert meta == {"states": 7, "digest": "abc", "method": "weighted", "temperature": 10.0, "refined": {}}
+    assert meta == {"states": 7, "digest": "abc", "method": "weighted", "temperature": 10.0, "refined": {},
+                    "revisions": {}}
     assert torch.equal(tensors["move-ego-0-0"], torch.ones(4))
 
 
@@ -354,3 +357,33 @@ def test_the_behaviour_checks_name_the_refined_prompts_they_ran(refined):
     got = check({"model": BFM.load(dst)}, ["stand", "jump"], episodes=1, steps=60, show_progress=False)
     assert got["refined_prompts"] == ["move-ego-0-0"]
     assert "stored prompts refined at export: move-ego-0-0" in " ".join(str(table(got).title).split())
+
+
+def test_a_prompt_stored_for_an_older_formula_is_inferred_again_with_a_warning(refined, tmp_path, monkeypatch):
+    """Revising a task's formula makes the prompts stored for it stale: on load they are dropped, refinement
+    included, and the task is inferred from the kept states under the new formula; an export stores it again."""
+    import warnings
+
+    from humanoid_env.tasks import get_reward
+
+    dst, task = refined
+    before = BFM.load(dst)
+    monkeypatch.setattr(type(get_reward(task)), "revision", 1)  # the formula of `task`'s family revised
+    recorded = before.reward_prompts.revisions
+    revised = {t for t in before.reward_prompts.z if get_reward(t).revisions() != recorded.get(t, {})}
+    assert task in revised and len(revised) < len(before.reward_prompts.z)
+    with pytest.warns(UserWarning, match=f"older formula.*{task}"):
+        got = BFM.load(dst)
+    assert set(got.reward_prompts.z) == set(before.reward_prompts.z) - revised and not got.reward_prompts.refined
+    plain = BFM(got.model, got.config, reward_buffer=got.reward_buffer)
+    np.testing.assert_array_equal(got.prompt.reward(task), plain.prompt.reward(task))
+    for kept in got.reward_prompts.z:
+        np.testing.assert_array_equal(got.prompt.reward(kept), before.prompt.reward(kept))
+    res = CliRunner().invoke(app, ["export", str(dst), str(tmp_path / "again"), "--store-prompts", "--full"])
+    assert res.exit_code == 0, res.output
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        again = BFM.load(tmp_path / "again")
+    stored = again.reward_prompts
+    assert revised & set(stored.z)
+    assert {t: stored.revisions.get(t, {}) for t in stored.z} == {t: get_reward(t).revisions() for t in stored.z}

@@ -14,10 +14,14 @@ metadata keeps the regression's z beside it (`Prompt.reward(task, refined=False)
 
 The z's belong to the weights they were inferred with: their metadata records a digest of the model's tensors,
 a checkpoint whose weights do not match it is refused on load, and a save after the weights changed drops them.
+They belong to their rewards' formulas too: the metadata records each task's revised terms
+(`humanoid_env.tasks.rewards`), and a prompt stored for an older formula is dropped on load with a warning, so the
+task is inferred from the checkpoint's reward states under today's formula.
 """
 from __future__ import annotations
 
 import hashlib
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -51,12 +55,15 @@ REFINEMENT_KEYS: Final = ("generations", "population", "starts", "steps", "seed"
 @dataclass(frozen=True)
 class RewardPrompts:
     """z (on the model's sphere) per task name, the number of states they were inferred from, the digest of
-    the weights they belong to, and for each refined task its record: the zero-shot z ("z0") and REFINEMENT_KEYS."""
+    the weights they belong to, for each refined task its record: the zero-shot z ("z0") and REFINEMENT_KEYS, and
+    the formula revisions of the tasks whose reward was revised."""
 
     z: dict[str, np.ndarray]
     states: int
     digest: str
     refined: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: per task, the revised terms of the reward formula its z was inferred for (`revisions_of`); none: as released
+    revisions: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def zero_shot(self, task: str) -> np.ndarray | None:
         """The regression's z for a stored task, refined or not; None for a task not stored."""
@@ -67,7 +74,8 @@ class RewardPrompts:
     def to_tensors(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """What `save_checkpoint(reward_prompts=...)` writes: one tensor per task and the JSON metadata."""
         meta = {"states": self.states, "digest": self.digest, "method": METHOD, "temperature": TEMPERATURE,
-                "refined": {task: {**rec, "z0": [float(v) for v in rec["z0"]]} for task, rec in self.refined.items()}}
+                "refined": {task: {**rec, "z0": [float(v) for v in rec["z0"]]} for task, rec in self.refined.items()},
+                "revisions": self.revisions}
         return {name: torch.as_tensor(z) for name, z in self.z.items()}, meta
 
 
@@ -79,6 +87,12 @@ def weights_digest(model: torch.nn.Module) -> str:
         h.update(f"{name}:{arr.dtype}:{arr.shape};".encode())
         h.update(arr.tobytes())
     return h.hexdigest()
+
+
+def revisions_of(task: str) -> dict[str, int]:
+    """The revised terms of a named task's reward formula (empty while all are as first released)."""
+    fn, _ = reward_fn(task)
+    return dict(fn.revisions()) if hasattr(fn, "revisions") else {}
 
 
 def infer_reward_prompts(bfm: PromptableModel, tasks: Sequence[str]) -> RewardPrompts:
@@ -102,7 +116,8 @@ def infer_reward_prompts(bfm: PromptableModel, tasks: Sequence[str]) -> RewardPr
             z[label] = bfm.project_z(regress_reward(fn, label, buf, b, METHOD, TEMPERATURE))
         except PromptError:
             continue
-    return RewardPrompts(z, int(b.shape[0]), weights_digest(bfm.model))
+    return RewardPrompts(z, int(b.shape[0]), weights_digest(bfm.model),
+                         revisions={t: r for t in z if (r := revisions_of(t))})
 
 
 def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], model: FBCPRModel,
@@ -127,16 +142,36 @@ def load_reward_prompts(tensors: dict[str, torch.Tensor], meta: dict[str, Any], 
     if len(tensors) > MAX_PROMPTS:
         raise CheckpointError(f"{file}: {len(tensors):,} prompts; a checkpoint stores at most {MAX_PROMPTS:,}")
     z_dim = int(model.z_dim)
-    z = {}
+    z, current = {}, {}
     for name, t in tensors.items():
         if tuple(t.shape) != (z_dim,) or not bool(torch.isfinite(t).all()):
             raise CheckpointError(f"{file}: {name!r} must be a finite ({z_dim},) z, got shape {tuple(t.shape)}")
         try:
-            reward_fn(name)
+            current[name] = revisions_of(name)
         except PromptError as err:
             raise CheckpointError(f"{file}: {err}") from None
         z[name] = t.float().cpu().numpy()
-    return RewardPrompts(z, states, meta["digest"], _refined(meta.get("refined", {}), z, z_dim, file))
+    refined = _refined(meta.get("refined", {}), z, z_dim, file)
+    recorded = _revisions(meta.get("revisions", {}), z, file)
+    stale = [t for t in z if recorded.get(t, {}) != current[t]]
+    if stale:
+        warnings.warn(f"{file}: stored for an older formula of their reward, these prompts are inferred from the "
+                      f"reward states instead: {', '.join(stale)} (export the model again with --store-prompts "
+                      "to store them)", UserWarning, stacklevel=2)
+    return RewardPrompts({t: v for t, v in z.items() if t not in stale}, states, meta["digest"],
+                         {t: r for t, r in refined.items() if t not in stale},
+                         {t: r for t, r in recorded.items() if t not in stale})
+
+
+def _revisions(records: Any, z: dict[str, np.ndarray], file: Path) -> dict[str, dict[str, int]]:
+    """The formula revisions of stored metadata, each checked: a stored task mapped to {term name: count}."""
+    ok = isinstance(records, dict) and all(
+        task in z and isinstance(rec, dict) and all(isinstance(k, str) and isinstance(v, int) for k, v in rec.items())
+        for task, rec in records.items())
+    if not ok:
+        raise CheckpointError(f"{file}: metadata 'revisions' must map stored task names to {{term: revision}}, got "
+                              f"{str(records)[:200]}")
+    return {task: dict(rec) for task, rec in records.items()}
 
 
 def _refined(records: Any, z: dict[str, np.ndarray], z_dim: int, file: Path) -> dict[str, dict[str, Any]]:

@@ -11,7 +11,7 @@ import difflib
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import numpy as np
 
@@ -83,9 +83,17 @@ class _Reward:
     """Shared validation and the RewardFn call signature; subclasses implement `compute(Features)` and `name` (a
     property or a dataclass field)."""
 
+    #: times this formula was revised after its first release: prompts stored for a task record it, so a prompt
+    #: inferred for an older formula is known to be stale (`fbcpr.inference.reward_prompts`)
+    revision: ClassVar[int] = 0
+
     @property
     def name(self) -> str:
         raise NotImplementedError
+
+    def revisions(self) -> dict[str, int]:
+        """The revised formulas this reward is made of, by term name; empty while every term is as first released."""
+        return {self.name: self.revision} if self.revision else {}
 
     def compute(self, f: Features) -> np.ndarray:
         raise NotImplementedError
@@ -205,9 +213,11 @@ class Crouch(_Reward):
 @dataclass(frozen=True)
 class SitOnGround(_Reward):
     """Sit on the floor (kneel-sit or legs forward): both knees on the floor, pelvis below 0.5 m, torso upright,
-    head up (a body curled over its knees is not sitting: the paper's reference reward asks the head 0.58 m up), still."""
+    head up (a body curled over its knees is not sitting: the paper's reference reward asks the head 0.58 m up),
+    still."""
 
     name: str = "sitonground"
+    revision: ClassVar[int] = 1  # the head term
 
     def compute(self, f: Features) -> np.ndarray:
         knees = _tol(np.maximum(f.z("L_Knee"), f.z("R_Knee")), 0.0, 0.12, 0.3)
@@ -315,10 +325,18 @@ class HeadHeight(_Reward):
 
 
 @dataclass(frozen=True)
-class Product(_Reward):
-    """All terms at once: the product of their values (written `a*b`)."""
+class _Combined(_Reward):
+    """A reward made of other rewards' terms."""
 
     terms: tuple[_Reward, ...]
+
+    def revisions(self) -> dict[str, int]:
+        return {k: v for t in self.terms for k, v in t.revisions().items()}
+
+
+@dataclass(frozen=True)
+class Product(_Combined):
+    """All terms at once: the product of their values (written `a*b`)."""
 
     @property
     def name(self) -> str:
@@ -332,10 +350,8 @@ class Product(_Reward):
 
 
 @dataclass(frozen=True)
-class Mean(_Reward):
+class Mean(_Combined):
     """Either term: the mean of their values (written `a+b`)."""
-
-    terms: tuple[_Reward, ...]
 
     @property
     def name(self) -> str:

@@ -3,9 +3,9 @@
 A stored prompt belongs to the reward it was regressed on. When a task's formula changes (section 52:
 `sitonground` gained a head term), its stored z, and its refinement, are stale. This regresses the named tasks
 again on the checkpoint's own reward states, the states every other stored prompt was inferred from (refused if
-their count differs from the stored prompts' record), drops those tasks' refinement records, and writes the
-checkpoint as `fbcpr export --reward-samples N --half --states-only` does. Refine them again after with
-`fbcpr export OUT OUT2 --refine-prompts TASKS`.
+their count differs from the stored prompts' record), drops those tasks' refinement records, records their
+formulas' revisions, and writes the checkpoint as `fbcpr export --reward-samples N --half --states-only` does.
+Refine them again after with `fbcpr export OUT OUT2 --refine-prompts TASKS`.
 
     python lab/experiments/reinfer_prompts.py pretrained runs/sit-reinfer --tasks sitonground
 """
@@ -36,12 +36,14 @@ def main() -> None:
         raise SystemExit(f"the stored prompts were inferred from {stored.states} states, the checkpoint keeps {states}")
     fresh = infer_reward_prompts(bfm, tasks)
     for task in tasks:
-        old = stored.zero_shot(task)
-        cos = float(np.dot(old, fresh.z[task])) / float(np.linalg.norm(old) * np.linalg.norm(fresh.z[task]))
-        print(f"{task}: cosine of the new zero-shot z to the stored one {cos:.3f}"
-              + (" (its refinement dropped)" if task in stored.refined else ""))
+        old, new = stored.zero_shot(task), fresh.z[task]
+        print(f"{task}: " + ("no prompt was stored (or it was stale and dropped on load)" if old is None else
+                             f"cosine of the new zero-shot z to the stored one "
+                             f"{float(np.dot(old, new)) / float(np.linalg.norm(old) * np.linalg.norm(new)):.3f}"))
     bfm.reward_prompts = replace(stored, z={**stored.z, **fresh.z},
-                                 refined={t: r for t, r in stored.refined.items() if t not in tasks})
+                                 refined={t: r for t, r in stored.refined.items() if t not in tasks},
+                                 revisions={**{t: r for t, r in stored.revisions.items() if t not in tasks},
+                                            **fresh.revisions})
     print("wrote", bfm.save(args.out, reward_samples=states, half=True, states_only=True))
 
 
