@@ -58,7 +58,7 @@ def export_command(
     from fbcpr.core.paths import check_output_folder
     from fbcpr.inference.bfm import BFM
     from fbcpr.inference.interpolation import interpolate, with_reward_states
-    from fbcpr.inference.refine import MAX_ENVS, Search
+    from fbcpr.inference.refine import Search, check_envs
     from fbcpr.inference.reward_prompts import infer_reward_prompts, refine_reward_prompts
     from humanoid_env.tasks.rewards import TASKS
 
@@ -73,9 +73,7 @@ def export_command(
     if unknown:
         raise InputError(f"--refine-prompts: {', '.join(unknown)} not among the named tasks (fbcpr tasks lists them)")
     search = Search(generations=refine, population=refine_population, seed=refine_seed)
-    if refine_population * refine_starts > MAX_ENVS:
-        raise InputError(f"--refine-population x --refine-starts = {refine_population * refine_starts} envs a "
-                         f"generation, more than {MAX_ENVS}")
+    check_envs(refine_population, refine_starts)
     sources = [*checkpoint_sources("the checkpoint to export", checkpoint),
                *checkpoint_sources("--interpolate", interpolate_from)]
     for src in reward_states_from or []:

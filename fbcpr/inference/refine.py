@@ -212,6 +212,14 @@ def goal_objective(goal: np.ndarray) -> Objective:
     return objective
 
 
+def check_envs(population: int, starts: int) -> None:
+    """A generation's envs (each holds a simulator) within MAX_ENVS: a PromptError naming both numbers when not,
+    checked before any rollout (and by `fbcpr export` before any file is read)."""
+    if population * starts > MAX_ENVS:
+        raise PromptError(f"refine: population x starts = {population} x {starts} envs a generation, more than "
+                          f"{MAX_ENVS}: use fewer starts or a smaller population")
+
+
 def refine(policy: Policy, z0: np.ndarray, objective: Objective, starts: tuple[np.ndarray, np.ndarray],
            steps: int = 300, search: Search | None = None, num_threads: int | None = None,
            on_step: Callable[[int], None] | None = None,
@@ -222,9 +230,7 @@ def refine(policy: Policy, z0: np.ndarray, objective: Objective, starts: tuple[n
     z0 = np.asarray(z0)
     if z0.shape != (policy.z_dim,):
         raise PromptError(f"refine: z0 must have shape ({policy.z_dim},), got {z0.shape}")
-    if search.population * len(starts[0]) > MAX_ENVS:
-        raise PromptError(f"refine: population x starts = {search.population} x {len(starts[0])} envs a "
-                          f"generation, more than {MAX_ENVS}: use fewer starts or a smaller population")
+    check_envs(search.population, len(starts[0]))
     result = cross_entropy(rollout_score(policy, objective, starts, steps, num_threads, on_step), z0, search,
                            on_generation)
     result.episodes = (search.generations * search.population + 1) * len(starts[0])
