@@ -78,6 +78,16 @@ def test_stored_reward_prompts_are_the_ones_its_states_give():
 REFINED = ("move-ego-0-4", "raisearms-h-h", "sitonground")
 
 
+def test_the_shipped_prompts_were_stored_for_todays_formulas():
+    """A prompt stored for an older formula would be dropped on load with a warning (sitonground was revised)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        stored = BFM.pretrained().reward_prompts
+    assert len(stored.z) == 54 and stored.revisions == {"sitonground": {"sitonground": 1}}
+
+
 def test_three_shipped_prompts_are_refined_and_keep_their_zero_shot_z():
     bfm = BFM.pretrained()
     stored = bfm.reward_prompts

@@ -134,7 +134,7 @@ def test_sitonground_asks_the_head_up():
     assert r("sitonground", seat) > 0.95
     head_z = BODY_POS.start + 3 * (BODY_NAMES.index("Head") - 1) + 2
     curled = np.repeat(seat[None], 3, 0)  # the same seat with the head lowered: a body curled over its knees
-    curled[:, head_z] -= [0.11, 0.26, 0.45]  # head at 0.58, 0.43 and 0.24 m
+    curled[:, head_z] -= [0.11, 0.16, 0.26]  # head at 0.58, 0.53 and 0.43 m
     values = get_reward("sitonground")(curled)
     assert values[0] > 0.95 and 0.4 < values[1] < 0.6 and values[2] == 0.0, values
 

@@ -222,7 +222,7 @@ class SitOnGround(_Reward):
     def compute(self, f: Features) -> np.ndarray:
         knees = _tol(np.maximum(f.z("L_Knee"), f.z("R_Knee")), 0.0, 0.12, 0.3)
         low = _tol(f.z("Pelvis"), 0.0, 0.5, 0.4)
-        head = _tol(f.z("Head"), SIT_HEAD, np.inf, 0.3)
+        head = _tol(f.z("Head"), SIT_HEAD, np.inf, 0.1)
         return knees * low * head * _upright(f, lo=0.7, margin=0.7) * _still(f)
 
 
