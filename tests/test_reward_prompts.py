@@ -379,8 +379,11 @@ def test_a_prompt_stored_for_an_older_formula_is_inferred_again_with_a_warning(r
     np.testing.assert_array_equal(got.prompt.reward(task), plain.prompt.reward(task))
     for kept in got.reward_prompts.z:
         np.testing.assert_array_equal(got.prompt.reward(kept), before.prompt.reward(kept))
-    with pytest.warns(UserWarning, match="older formula"):  # the export loads the stale file too
-        res = CliRunner().invoke(app, ["export", str(dst), str(tmp_path / "again"), "--store-prompts", "--full"])
+    res = CliRunner().invoke(app, ["prompt", str(dst), "--reward", task, "--steps", "3"])
+    said = " ".join(res.output.split())
+    assert res.exit_code == 0 and f"warning: {dst / PROMPTS_FILE}: stored for an older formula" in said, res.output
+    assert "inferred from the checkpoint's reward states" in said and "bfm.py" not in said  # one line, no source
+    res = CliRunner().invoke(app, ["export", str(dst), str(tmp_path / "again"), "--store-prompts", "--full"])
     assert res.exit_code == 0, res.output
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -5,6 +5,7 @@ import functools
 import os
 import re
 import sys
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -148,13 +149,23 @@ def register(app: typer.Typer) -> None:
     app.callback(cls=HelpGroup)(_global_options)
 
 
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: Any = None, line: str | None = None) -> None:
+    """A warning as one yellow line, without the source line Python would print under it."""
+    err_console.print(f"[bold yellow]warning:[/] {escape(str(message))}", highlight=False, soft_wrap=True)
+
+
 def cli_errors(fn: F) -> F:
-    """Turn any exception into a one-line red error and exit code 1, unless debugging is on."""
+    """Turn any exception into a one-line red error and exit code 1, and a warning into one yellow line, unless
+    debugging is on."""
 
     @functools.wraps(fn)
     def wrapper(*args: object, **kwargs: object) -> object:
         try:
-            return fn(*args, **kwargs)
+            with warnings.catch_warnings():
+                if not debug_enabled():
+                    warnings.showwarning = _show_warning
+                return fn(*args, **kwargs)
         except (typer.Exit, typer.Abort, KeyboardInterrupt):
             raise
         except Exception as err:
