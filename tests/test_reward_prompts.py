@@ -391,3 +391,15 @@ def test_a_prompt_stored_for_an_older_formula_is_inferred_again_with_a_warning(r
     stored = again.reward_prompts
     assert revised & set(stored.z)
     assert {t: stored.revisions.get(t, {}) for t in stored.z} == {t: get_reward(t).revisions() for t in stored.z}
+
+
+def test_store_prompts_says_which_refined_prompts_it_replaces(refined, tmp_path):
+    dst, task = refined
+    res = CliRunner().invoke(app, ["export", str(dst), str(tmp_path / "out"), "--store-prompts", "--full"])
+    said = " ".join(res.output.split())
+    assert res.exit_code == 0 and f"warning: --store-prompts replaces the refined prompts of {task}" in said, said
+    assert f"add --refine-prompts {task}" in said and not BFM.load(tmp_path / "out").reward_prompts.refined
+    res = CliRunner().invoke(app, ["export", str(dst), str(tmp_path / "kept"), "--store-prompts", "--full",
+                                   "--refine-prompts", task, *REFINE])
+    assert res.exit_code == 0 and "replaces the refined" not in res.output, res.output
+    assert set(BFM.load(tmp_path / "kept").reward_prompts.refined) == {task}

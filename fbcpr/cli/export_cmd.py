@@ -4,6 +4,7 @@ another model's reward states (`--reward-states-from MODEL`), with the named tas
 all of those states (`--store-prompts`), and some of those refined by rollouts (`--refine-prompts TASKS`)."""
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import typer
@@ -88,6 +89,10 @@ def export_command(
         if bfm.env_name != "humanoid":
             raise InputError(f"--store-prompts: the named tasks are the humanoid's, and {checkpoint} was trained on "
                              f"{bfm.env_name!r}")
+        replaced = sorted(set(bfm.reward_prompts.refined) - set(refining)) if bfm.reward_prompts is not None else []
+        if replaced:  # a refined z came from rollouts, and a user may not know that the regression replaces it
+            warnings.warn(f"--store-prompts replaces the refined prompts of {', '.join(replaced)} with zero-shot "
+                          f"ones; to keep them refined, add --refine-prompts {','.join(replaced)}", stacklevel=1)
         with console.status(f"inferring {len(TASKS)} reward prompts from every reward state"):
             bfm.reward_prompts = infer_reward_prompts(bfm, TASKS)
         left_out = [t for t in TASKS if t not in bfm.reward_prompts.z]
