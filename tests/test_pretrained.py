@@ -79,13 +79,15 @@ REFINED = ("move-ego-0-4", "raisearms-h-h")
 
 
 def test_the_shipped_prompts_were_stored_for_todays_formulas():
-    """A prompt stored for an older formula would be dropped on load with a warning (sitonground was revised)."""
+    """A prompt stored for an older formula would be dropped on load with a warning (sitonground, jump-2 and crouch-0
+    were revised)."""
     import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         stored = BFM.pretrained().reward_prompts
-    assert len(stored.z) == 54 and stored.revisions == {"sitonground": {"sitonground": 1}}
+    assert len(stored.z) == 54 and stored.revisions == {
+        "sitonground": {"sitonground": 1}, "jump-2": {"jump-2": 1}, "crouch-0": {"crouch-0": 1}}
     assert "sitonground" not in stored.refined  # re-inferred for the head term; no search found a seat on it
 
 

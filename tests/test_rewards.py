@@ -122,6 +122,9 @@ def test_head_height_pays_more_for_every_posture_further_up():
 def test_ground_poses():
     assert r("crouch-0", state(goal_qpos("crouch_low"))) > 0.9
     assert r("crouch-0", state(STAND)) < 0.1 and r("crouch-0", state(goal_qpos("sit_on_ground"))) < 0.05
+    # standing on bent knees is not a crouch: the pelvis of crouch_high is 0.80 m, of crouch_medium 0.66 m
+    high, medium = (r("crouch-0", state(goal_qpos(p))) for p in ("crouch_high", "crouch_medium"))
+    assert high == 0.0 and medium > 0.5
     assert r("sitonground", state(goal_qpos("kneel_both"))) > 0.9
     assert r("sitonground", state(goal_qpos("sit_on_ground"))) > 0.75  # torso leans forward 50 deg
     assert r("sitonground", state(STAND)) < 0.01
@@ -139,10 +142,21 @@ def test_sitonground_asks_the_head_up():
     assert values[0] > 0.95 and 0.4 < values[1] < 0.6 and values[2] == 0.0, values
 
 
+def test_jump_pays_the_upward_speed_not_any_rise():
+    up = STAND.copy()
+    up[2] += 0.5  # head 2.07 m
+    rising = np.stack([state(up, lin=(0, 0, v)) for v in (0.5, 1.0, 2.0, 3.0, 5.0)])
+    values = get_reward("jump-2")(rising)
+    assert np.all(np.diff(values) > 0) and values[-1] > 0.95, values  # a faster take-off always pays more
+    assert values[0] < 0.15 < 0.35 < values[2] < 0.45, values  # a bob at 0.5 m/s: a tenth; a take-off at 2: 0.4
+    bob = state(STAND, lin=(0, 0, 0.5))  # head 1.57 m, rising as a body bobbing on its knees does
+    assert r("jump-2", bob) < 0.1 * r("jump-2", rising[-1])
+
+
 def test_jump_rotation_handstand_crawl():
     up = STAND.copy()
     up[2] += 0.5
-    assert r("jump-2", state(up, lin=(0, 0, 2))) > 0.95
+    assert r("jump-2", state(up, lin=(0, 0, 5))) > 0.95
     assert r("jump-2", state(up, lin=(0, 0, -2))) < 0.01 and r("jump-2", state(STAND)) < 0.01
     spin = state(STAND, ang=(0, 0, 5))
     assert r("rotate-z-5-0.8", spin) > 0.95 and r("rotate-z--5-0.8", spin) < 0.01 and r("rotate-x-5-0.8", spin) < 0.2

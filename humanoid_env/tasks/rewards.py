@@ -30,6 +30,7 @@ class RewardFn(Protocol):
 STAND_HEAD = 1.4          # head height that counts as standing
 LOW_PELVIS = (0.45, 0.7)  # pelvis band for low locomotion
 SIT_HEAD = 0.58           # head height of an upright seat on the floor
+JUMP_SPEED = 5.0          # vertical centre-of-mass speed (m/s) at which the jump reward saturates
 ARM_BANDS = {"l": (0.0, 1.0, 0.2), "m": (1.3, 1.55, 0.1), "h": (1.8, np.inf, 0.2)}  # wrist z (lo, hi, margin)
 
 
@@ -129,8 +130,14 @@ class Move(_Reward):
 
 @dataclass(frozen=True)
 class Jump(_Reward):
-    """Head above `height` m while the centre of mass still rises."""
+    """Head above `height` m, paid in proportion to the centre of mass's upward speed up to JUMP_SPEED.
 
+    Revision 1: the speed term was `tol(v_z, 0.5, inf, 0.5)`, which paid a body bobbing on its knees in full on
+    every rise. Take-offs of real jumps reach 2-3 m/s, so a linear term to 5 m/s (the paper's reference reward)
+    never saturates on them and pays a faster take-off more.
+    """
+
+    revision: ClassVar[int] = 1
     height: float
 
     @property
@@ -139,7 +146,7 @@ class Jump(_Reward):
 
     def compute(self, f: Features) -> np.ndarray:
         up = _tol(f.z("Head"), self.height, np.inf, self.height / 2)
-        rising = _tol(f.com_vel[:, 2], 0.5, np.inf, 0.5)
+        rising = _tol(f.com_vel[:, 2], JUMP_SPEED, np.inf, JUMP_SPEED)
         return _upright(f) * up * rising
 
 
@@ -193,8 +200,12 @@ class RaiseArms(_Reward):
 @dataclass(frozen=True)
 class Crouch(_Reward):
     """Squat: pelvis low (between `min_height` and 0.6 m) and above the feet, feet on the floor, knees off it,
-    torso upright, still."""
+    torso upright, still.
 
+    Revision 1: the pelvis margin was 0.4 m, which paid a body standing on bent knees (pelvis 0.8 m) half.
+    """
+
+    revision: ClassVar[int] = 1
     min_height: float
 
     @property
@@ -202,7 +213,7 @@ class Crouch(_Reward):
         return f"crouch-{_fmt(self.min_height)}"
 
     def compute(self, f: Features) -> np.ndarray:
-        low = _tol(f.z("Pelvis"), self.min_height, 0.6, 0.4)
+        low = _tol(f.z("Pelvis"), self.min_height, 0.6, 0.15)
         feet = _tol(np.maximum(f.z("L_Ankle"), f.z("R_Ankle")), 0.0, 0.15, 0.3)
         ankles_xy = (f.rel("L_Ankle")[:, :2] + f.rel("R_Ankle")[:, :2]) / 2
         over_feet = _tol(np.linalg.norm(ankles_xy, axis=1), 0.0, 0.3, 0.3)
