@@ -164,6 +164,8 @@ def test_goal_poses_reached_are_compared_with_the_zero_floor() -> None:
     goals = res["families"]["goal_poses"]
     assert "t_pose" in goals["poses_reached"] and "lie_back" not in goals["poses_reached"]
     assert goals["reached_not_above_zero"] == goals["poses_reached"]
+    still = goals["agents"]["still"]["standing"]
+    assert still["pass"] > 0 and goals["success_above_zero"] == 0.0 and not goals["passed"]  # all of it the floor's
 
 
 def test_refine_searches_each_family_prompt_from_its_own_kind_of_start() -> None:

@@ -134,8 +134,9 @@ def _behaviours(ctx: typer.Context, ckpt: str, names: list[str] | None, episodes
         same = goals["reached_not_above_zero"]
         console.print(f"goal poses reached in half the episodes or more: {len(goals['poses_reached'])} of "
                       f"{len(goals['agents'][results['agent']][goals['start']]['poses'])}"
-                      + (f"; no better than zero action on {len(same)} of them ({', '.join(same)})" if same else ""),
-                      highlight=False)
+                      + (f"; no better than zero action on {len(same)} of them ({', '.join(same)})" if same else "")
+                      + f"; mean success counting only poses reached more often than by zero action: "
+                        f"{goals['success_above_zero']:.2f}", highlight=False)
     sheets = results.get("sheets")
     console.print(f"results in [bold]{out / 'behaviours.json'}[/]" + (f", contact sheets in [bold]{out / 'behaviours'}"
                                                                      "[/]" if isinstance(sheets, list) else

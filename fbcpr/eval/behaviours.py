@@ -181,7 +181,8 @@ FAMILIES: tuple[Family, ...] = (
     Family("spin", "rotate-z-5-0.8", "standing", "at least 2.5 rad/s about the vertical over the last 5 s, "
            "pelvis > 0.6 m", _spin(5.0)),
     Family("goal_poses", "goals", "standing", f"the paper's success (d <= {GOAL_BETA:g} at some step), mean over "
-           "the named poses, >= 0.3", need=0.3),
+           "the named poses, >= 0.3; beside the zero floor, a pose reached no more often than by zero action "
+           "counts 0", need=0.3),
 )
 FAMILY_NAMES = tuple(f.name for f in FAMILIES)
 
@@ -445,6 +446,10 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
         reached = [g for g, p in mine.items() if p["success"] >= PASS_SHARE]
         goals["poses_reached"] = reached  # in half the episodes or more
         goals["reached_not_above_zero"] = [g for g in reached if mine[g]["success"] <= zero[g]["success"]]
+        # the rest pose is a T-pose: standing still reaches those poses, so only success beyond the floor's counts
+        above = [p["success"] if p["success"] > zero[g]["success"] else 0.0 for g, p in mine.items()]
+        goals["success_above_zero"] = float(np.mean(above))
+        goals["passed"] = goals["success_above_zero"] >= goals["need"]
     passed = [n for n, e in results["families"].items() if e["passed"]]
     results["summary"] = {"passed": passed, "families_passed": len(passed), "of": len(fams)}
     if out is not None:
@@ -535,5 +540,5 @@ def table(results: dict[str, Any]) -> Any:
                   "[green]yes[/]" if e["passed"] else "[red]no[/]")
     s = results["summary"]
     t.caption = f"{agents[0]} passes {s['families_passed']} of {s['of']} families (a family needs 0.5 of its " \
-                f"episodes, the goal poses 0.3 mean success)"
+                f"episodes, the goal poses 0.3 mean success beyond zero action's)"
     return t
