@@ -317,8 +317,63 @@ def test_refining_needs_stored_prompts(exported, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_search_can_start_from_a_saved_z(exported, tmp_path):
+    """--refine-from: the search starts from a z found some other way; the record keeps it beside the zero-shot z."""
+    from fbcpr.inference.refine import Search, project, refine, reward_objective, standing_starts
+
+    _, _, out = exported
+    bfm = BFM.load(out)
+    task, other = [t for t in TASKS if t in bfm.reward_prompts.z][:2]
+    start = (0.5 * bfm.prompt.reward(other)).astype(np.float32)  # off the sphere: the search projects it
+    np.save(tmp_path / "start.npy", start)
+    dst = tmp_path / "model"
+    res = CliRunner().invoke(app, ["export", str(out), str(dst), "--reward-samples", "16", "--full",
+                                   "--refine-prompts", task, "--refine-from", f"{task}={tmp_path / 'start.npy'}",
+                                   *REFINE])
+    assert res.exit_code == 0, res.output
+    got = BFM.load(dst)
+    record = got.reward_prompts.refined[task]
+    np.testing.assert_allclose(record["start"], project(start), atol=1e-5)
+    np.testing.assert_array_equal(record["z0"], bfm.prompt.reward(task))  # the zero-shot z stays the zero-shot z
+    same = refine(bfm, start, reward_objective(task), standing_starts(1, 1), steps=3,
+                  search=Search(generations=1, population=2, seed=0))
+    np.testing.assert_allclose(got.prompt.reward(task), same.z, atol=1e-6)
+    assert record["score0"] == pytest.approx(same.score0)  # the start's score, not the zero-shot z's
+    again = BFM.load(got.save(tmp_path / "again"))  # the start travels with a save
+    np.testing.assert_array_equal(again.reward_prompts.refined[task]["start"], record["start"])
+
+
+@pytest.mark.parametrize("case, match", [
+    ("form", "expected TASK=Z.npy"), ("task", "is not among --refine-prompts"), ("missing", "is not a file"),
+    ("shape", "must hold one finite float z of shape"), ("pickle", "is not a .npy array"),
+    ("alone", "only mean something with --refine-prompts"),
+])
+def test_refine_from_is_checked_and_names_its_file(exported, tmp_path, case, match):
+    _, _, out = exported
+    bfm = BFM.load(out)
+    task = next(t for t in TASKS if t in bfm.reward_prompts.z)
+    path = tmp_path / "z.npy"
+    if case == "shape":
+        np.save(path, np.ones(bfm.z_dim + 1, np.float32))
+    elif case == "pickle":
+        np.save(path, np.array([{"z": 1}], dtype=object), allow_pickle=True)
+    else:
+        np.save(path, np.ones(bfm.z_dim, np.float32))
+    value = {"form": str(path), "task": f"move-ego-0-2-raisearms-h-h={path}", "missing": f"{task}={tmp_path / 'no.npy'}"
+             }.get(case, f"{task}={path}")
+    refining = [] if case == "alone" else ["--refine-prompts", task]
+    res = CliRunner().invoke(app, ["export", str(out), str(tmp_path / "out"), *refining, "--refine-from", value,
+                                   *REFINE])
+    said = " ".join(res.output.split())
+    assert res.exit_code != 0 and match in said, res.output
+    if case in ("missing", "shape", "pickle"):
+        assert "no.npy" in said or "z.npy" in said
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("case, match", [
     ("unstored", "stores no prompt"), ("key", "missing score"), ("z0", "finite"), ("type", "map task names"),
+    ("start", "finite"),
 ])
 def test_malformed_refinement_records_are_named(refined, tmp_path, case, match):
     dst, task = refined
@@ -329,6 +384,8 @@ def test_malformed_refinement_records_are_named(refined, tmp_path, case, match):
         del meta["refined"][task]["score"]
     elif case == "z0":
         meta["refined"][task]["z0"] = meta["refined"][task]["z0"][:-1]
+    elif case == "start":
+        meta["refined"][task]["start"] = [float("nan")] * len(meta["refined"][task]["z0"])
     else:
         meta["refined"] = [task]
     bad = _resave(dst, tmp_path / case, (tensors, meta))

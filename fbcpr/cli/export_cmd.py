@@ -1,12 +1,14 @@
 """`fbcpr export CKPT OUT`: a compact inference checkpoint (model, config, a float16 reward subsample of states),
 optionally with its weights interpolated towards the model it was trained on from (`--interpolate BASE`), and with
 another model's reward states (`--reward-states-from MODEL`), with the named tasks' reward prompts inferred from
-all of those states (`--store-prompts`), and some of those refined by rollouts (`--refine-prompts TASKS`)."""
+all of those states (`--store-prompts`), and some of those refined by rollouts (`--refine-prompts TASKS`, each
+search from the zero-shot z or from a saved one, `--refine-from TASK=Z.npy`)."""
 from __future__ import annotations
 
 import warnings
 from pathlib import Path
 
+import numpy as np
 import typer
 
 from fbcpr.cli.common import checkpoint_sources, cli_errors, comma_names, console, given, progress
@@ -53,6 +55,10 @@ def export_command(
                                      help="With --refine-prompts: episode length in control steps (30 Hz)."),
     refine_seed: int = typer.Option(0, "--refine-seed",
                                     help="With --refine-prompts: seed of the search (its starts: seed + 1)."),
+    refine_from: list[str] = typer.Option(None, "--refine-from", metavar="TASK=Z.npy",
+                                          help="With --refine-prompts: start TASK's search from this saved z "
+                                               "(fbcpr prompt --save-z, or any (z_dim,) .npy) instead of its "
+                                               "zero-shot z; repeat it for several tasks."),
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.core.errors import InputError
@@ -67,12 +73,13 @@ def export_command(
         raise InputError("--alpha: only means something with --interpolate BASE")
     refining = comma_names(refine_prompts)
     loose = [f"--{n.replace('_', '-')}" for n in ("refine", "refine_starts", "refine_population", "refine_steps",
-                                                  "refine_seed") if given(ctx, n)]
+                                                  "refine_seed", "refine_from") if given(ctx, n)]
     if loose and not refining:
         raise InputError(f"{', '.join(loose)}: only mean something with --refine-prompts TASKS")
     unknown = [t for t in refining if t not in TASKS]
     if unknown:
         raise InputError(f"--refine-prompts: {', '.join(unknown)} not among the named tasks (fbcpr tasks lists them)")
+    start_paths = start_z_paths(refine_from or [], refining)
     search = Search(generations=refine, population=refine_population, seed=refine_seed)
     check_envs(refine_population, refine_starts)
     sources = [*checkpoint_sources("the checkpoint to export", checkpoint),
@@ -102,8 +109,9 @@ def export_command(
         with progress() as bar:
             task = bar.add_task(f"refining {len(refining)} prompts",
                                 total=len(refining) * (refine * refine_population + 1) * refine_steps)
+            starts_from = {t: read_z(p, bfm.z_dim, "--refine-from") for t, p in start_paths.items()}
             bfm.reward_prompts = refine_reward_prompts(bfm, refining, search, refine_starts, refine_steps,
-                                                       on_step=lambda k: bar.advance(task, k))
+                                                       on_step=lambda k: bar.advance(task, k), start_from=starts_from)
         for name in refining:
             rec = bfm.reward_prompts.refined[name]
             console.print(f"refined {name}: mean reward on its starts {rec['score0']:.3f} -> {rec['score']:.3f}")
@@ -116,6 +124,41 @@ def export_command(
         console.print(f"its reward states are {checkpoint}'s; to try the mix's own (better for some mixes, worse for "
                       f"others: measure both): fbcpr train fbcpr/configs/own-states.yaml "
                       f"--init-from {path} --out RUN, then fbcpr export {path} OUT --reward-states-from RUN")
+
+
+def start_z_paths(values: list[str], refining: list[str]) -> dict[str, Path]:
+    """--refine-from TASK=PATH values by task, each naming a task of --refine-prompts once."""
+    from fbcpr.core.errors import InputError
+
+    out: dict[str, Path] = {}
+    for value in values:
+        task, sep, path = value.partition("=")
+        if not sep or not task or not path:
+            raise InputError(f"--refine-from: expected TASK=Z.npy, got {value!r}")
+        if task not in refining:
+            raise InputError(f"--refine-from: {task} is not among --refine-prompts ({', '.join(refining)})")
+        if task in out:
+            raise InputError(f"--refine-from: {task} is given twice")
+        out[task] = Path(path)
+    return out
+
+
+def read_z(path: Path, z_dim: int, option: str) -> np.ndarray:
+    """A saved z: one finite (z_dim,) float vector in a .npy file (no pickles, at most 1 MiB)."""
+    from fbcpr.core.errors import InputError
+
+    if not path.is_file():
+        raise InputError(f"{option}: {path} is not a file")
+    if path.stat().st_size > 2**20:
+        raise InputError(f"{option}: {path} is {path.stat().st_size:,} bytes; a saved z is a few KB")
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as err:
+        raise InputError(f"{option}: {path} is not a .npy array ({err})") from err
+    if z.shape != (z_dim,) or z.dtype.kind != "f" or not np.all(np.isfinite(z)):
+        raise InputError(f"{option}: {path} must hold one finite float z of shape ({z_dim},), got {z.dtype} "
+                         f"{z.shape}")
+    return z.astype(np.float32)
 
 
 def register(app: typer.Typer) -> None:

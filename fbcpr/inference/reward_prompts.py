@@ -33,7 +33,7 @@ import torch
 from fbcpr.core.checkpoint import PROMPTS_FILE, CheckpointError
 from fbcpr.core.errors import InputError, PromptError
 from fbcpr.inference.prompt import PromptableModel, regress_reward, reward_fn
-from fbcpr.inference.refine import Search, refine, reward_objective, standing_starts
+from fbcpr.inference.refine import Search, project, refine, reward_objective, standing_starts
 from fbcpr.nn.latents import TEMPERATURE
 
 if TYPE_CHECKING:
@@ -55,7 +55,8 @@ REFINEMENT_KEYS: Final = ("generations", "population", "starts", "steps", "seed"
 @dataclass(frozen=True)
 class RewardPrompts:
     """z (on the model's sphere) per task name, the number of states they were inferred from, the digest of
-    the weights they belong to, for each refined task its record: the zero-shot z ("z0") and REFINEMENT_KEYS, and
+    the weights they belong to, for each refined task its record: the zero-shot z ("z0"), REFINEMENT_KEYS ("score0"
+    is the score of the z the search started from), the start z ("start") when the search did not start from z0, and
     the formula revisions of the tasks whose reward was revised."""
 
     z: dict[str, np.ndarray]
@@ -74,7 +75,8 @@ class RewardPrompts:
     def to_tensors(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """What `save_checkpoint(reward_prompts=...)` writes: one tensor per task and the JSON metadata."""
         meta = {"states": self.states, "digest": self.digest, "method": METHOD, "temperature": TEMPERATURE,
-                "refined": {task: {**rec, "z0": [float(v) for v in rec["z0"]]} for task, rec in self.refined.items()},
+                "refined": {task: {**rec, **{k: [float(v) for v in rec[k]] for k in ("z0", "start") if k in rec}}
+                            for task, rec in self.refined.items()},
                 "revisions": self.revisions}
         return {name: torch.as_tensor(z) for name, z in self.z.items()}, meta
 
@@ -192,17 +194,25 @@ def _refined(records: Any, z: dict[str, np.ndarray], z_dim: int, file: Path) -> 
         if not all(isinstance(rec[k], (int, float)) and np.isfinite(rec[k]) for k in REFINEMENT_KEYS):
             raise CheckpointError(f"{file}: the refinement of {task!r} has a non-numeric setting or score")
         out[task] = {**{k: rec[k] for k in REFINEMENT_KEYS}, "z0": z0.astype(np.float32)}
+        if "start" in rec:  # the search started from a given z, not from z0
+            start = np.asarray(rec["start"], dtype=np.float64)
+            if start.shape != (z_dim,) or not np.all(np.isfinite(start)):
+                raise CheckpointError(f"{file}: the refinement of {task!r} must keep a finite ({z_dim},) start")
+            out[task]["start"] = start.astype(np.float32)
     return out
 
 
 def refine_reward_prompts(bfm: Any, tasks: Sequence[str], search: Search, starts: int, steps: int,
                           num_threads: int | None = None,
-                          on_step: Callable[[int], None] | None = None) -> RewardPrompts:
+                          on_step: Callable[[int], None] | None = None,
+                          start_from: dict[str, np.ndarray] | None = None) -> RewardPrompts:
     """`bfm`'s stored prompts with each of `tasks` refined by rollouts for its own reward from `starts` standing
-    starts (drawn with `search.seed` + 1, as `fbcpr prompt --refine` draws them), starting from the zero-shot z.
+    starts (drawn with `search.seed` + 1, as `fbcpr prompt --refine` draws them), starting from the zero-shot z, or
+    from `start_from[task]` where given (a z found some other way, e.g. by screening many z's on the behaviour;
+    kept in the record as "start", the zero-shot z as "z0").
 
-    A task whose refined z scores no better on those starts than its zero-shot z keeps the zero-shot z (the search
-    returns the best mean it scored, z0 included). Raises PromptError for a task that is not stored."""
+    A task whose refined z scores no better on those starts than the z it started from keeps that z (the search
+    returns the best mean it scored, its start included). Raises PromptError for a task that is not stored."""
     stored: RewardPrompts | None = bfm.reward_prompts
     if stored is None:
         raise PromptError("refining stored prompts needs stored prompts: export with --store-prompts too")
@@ -210,13 +220,20 @@ def refine_reward_prompts(bfm: Any, tasks: Sequence[str], search: Search, starts
     if missing:
         raise PromptError(f"no stored prompt to refine for {', '.join(missing)} (stored: the named tasks the "
                           "reward states pay; `fbcpr tasks` lists the names)")
+    given = start_from or {}
+    stray = sorted(set(given) - set(tasks))
+    if stray:
+        raise PromptError(f"a start z is given for {', '.join(stray)}, which is not among the tasks to refine")
     z, refined = dict(stored.z), dict(stored.refined)
     for task in tasks:
         z0 = stored.zero_shot(task)
         assert z0 is not None  # stored, checked above
-        got = refine(bfm, z0, reward_objective(task), standing_starts(starts, search.seed + 1), steps=steps,
+        first = project(given[task]).astype(np.float32) if task in given else z0  # the search starts on the sphere
+        got = refine(bfm, first, reward_objective(task), standing_starts(starts, search.seed + 1), steps=steps,
                      search=search, num_threads=num_threads, on_step=on_step)
         z[task] = got.z
         refined[task] = {"generations": search.generations, "population": search.population, "starts": starts,
                          "steps": steps, "seed": search.seed, "score0": got.score0, "score": got.score, "z0": z0}
+        if task in given:
+            refined[task]["start"] = first
     return replace(stored, z=z, refined=refined)
