@@ -92,6 +92,7 @@ def export_command(
         bfm = interpolate(BFM.load(interpolate_from), bfm, alpha)
     if reward_states_from:
         bfm = with_reward_states(bfm, [BFM.load(src) for src in reward_states_from])
+    starts_from = {t: read_z(p, bfm.z_dim, "--refine-from") for t, p in start_paths.items()}  # before any work
     if store_prompts:
         if bfm.env_name != "humanoid":
             raise InputError(f"--store-prompts: the named tasks are the humanoid's, and {checkpoint} was trained on "
@@ -109,7 +110,6 @@ def export_command(
         with progress() as bar:
             task = bar.add_task(f"refining {len(refining)} prompts",
                                 total=len(refining) * (refine * refine_population + 1) * refine_steps)
-            starts_from = {t: read_z(p, bfm.z_dim, "--refine-from") for t, p in start_paths.items()}
             bfm.reward_prompts = refine_reward_prompts(bfm, refining, search, refine_starts, refine_steps,
                                                        on_step=lambda k: bar.advance(task, k), start_from=starts_from)
         for name in refining:
