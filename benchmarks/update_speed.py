@@ -28,7 +28,7 @@ from fbcpr.nn.networks import project_sphere
 
 SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}
 #: The graphed and eager twins agree when every difference stays below this, or below FLOOR_FACTOR times the
-#: difference between two eager twins on the same device. On the lease of 2026-11-26 the eager twins agreed exactly
+#: difference between two eager twins on the same device. On an H100 (2026-11-26) the eager twins agreed exactly
 #: and the graphed one was 3.5e-4 off on the metrics, 5e-7 on the actions and 1.7e-7 on all weights (kernels picked
 #: inside a capture round differently); a graph that replays stale inputs or the same random draws departs by far
 #: more within a few updates.
