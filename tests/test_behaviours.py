@@ -67,6 +67,17 @@ def test_jump_needs_flight_and_height_after_the_first_second() -> None:
     assert not passes("jump", B.Trace(observe(load_model(), early, np.zeros((T, NV))).astype(np.float32)[:, None]))
 
 
+def test_feet_raised_while_lying_are_no_flight() -> None:
+    """A body on its back with its feet in the air has every foot off the floor, but it is not jumping."""
+    lying = np.tile(goal_qpos("lie_back"), (T, 1))
+    lying[:, 2] += 0.15  # the whole body, feet included, 0.15 m up
+    trace = B.Trace(observe(load_model(), lying, np.zeros((T, NV))).astype(np.float32)[:, None])
+    feet_up = np.all([trace.z(b) > B.standing_heights()[b] + B.FLIGHT_CLEARANCE for b in B.FEET], axis=0)
+    assert feet_up[CONTROL_HZ:].all()  # the feet would count as a flight by height alone
+    ok, m = {f.name: f.judge for f in B.FAMILIES}["jump"](trace)  # type: ignore[misc]
+    assert m["flight_steps"][0] == 0 and not ok[0]
+
+
 @pytest.mark.parametrize("vx, vy, walk, run", [(2.0, 0.0, True, False), (4.0, 0.0, False, True),
                                                (0.5, 0.0, False, False), (0.0, 2.0, False, False),
                                                (-2.0, 0.0, False, False)])

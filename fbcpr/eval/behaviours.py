@@ -103,7 +103,9 @@ def _move(angle: float, speed: float) -> Judge:
 def _jump(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     rest = standing_heights()
     settled = slice(CONTROL_HZ, None)  # a fall start drops from up to 1 m: that is not a jump
-    flight = np.all([tr.z(b)[settled] > rest[b] + FLIGHT_CLEARANCE for b in FEET], axis=0)  # (T, E)
+    # feet raised by a body lying on its back are not a flight: the pelvis must be at standing height
+    flight = np.all([tr.z(b)[settled] > rest[b] + FLIGHT_CLEARANCE for b in FEET], axis=0) & (
+        tr.z("Pelvis")[settled] > STANDING)  # (T, E)
     gain = tr.z("Pelvis")[settled].max(0) - rest["Pelvis"]
     return flight.any(0) & (gain >= JUMP_GAIN), {"apex_gain": gain, "flight_steps": flight.sum(0).astype(float)}
 
@@ -168,7 +170,8 @@ FAMILIES: tuple[Family, ...] = (
     Family("run", "move-ego-0-4", "standing", "3-6 m/s along the prompted direction, heading error <= 30 deg, "
            "pelvis > 0.6 m, over the last 5 s", _move(0.0, 4.0)),
     Family("jump", "jump-2", "standing", f"a flight phase (every foot {FLIGHT_CLEARANCE:g} m above its standing "
-           f"height) and the pelvis {JUMP_GAIN:g} m above standing, after the first second", _jump),
+           f"height, pelvis > {STANDING:g} m) and the pelvis {JUMP_GAIN:g} m above standing, after the first second",
+           _jump),
     Family("sit", "sitonground", "standing", "over the last second: pelvis < 0.5 m on the knees or the seat, "
            "head 0.35 m above the pelvis", _sit),
     Family("lie_face_up", "lieonground-up", "standing", "over the last second: pelvis < 0.3 m, head < 0.35 m, "
