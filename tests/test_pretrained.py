@@ -75,7 +75,9 @@ def test_stored_reward_prompts_are_the_ones_its_states_give():
 
 
 #: the tasks whose shipped prompts were refined by rollouts at export (model card, "Stored reward prompts")
-REFINED = ("move-ego-0-4", "raisearms-h-h", "sitonground")
+REFINED = ("move-ego-0-4", "raisearms-h-h", "rotate-z-5-0.8", "sitonground")
+#: those whose search started from a z found by a screen (export --refine-from), not from the zero-shot z
+SCREENED = ("rotate-z-5-0.8", "sitonground")
 
 
 def test_the_shipped_prompts_were_stored_for_todays_formulas():
@@ -90,16 +92,17 @@ def test_the_shipped_prompts_were_stored_for_todays_formulas():
         "sitonground": {"sitonground": 1}, "jump-2": {"jump-2": 1}, "crouch-0": {"crouch-0": 1}}
 
 
-def test_three_shipped_prompts_are_refined_and_keep_their_zero_shot_z():
+def test_four_shipped_prompts_are_refined_and_keep_their_zero_shot_z():
     bfm = BFM.pretrained()
     stored = bfm.reward_prompts
     assert sorted(stored.refined) == list(REFINED)
     for task in REFINED:
         record, z, z0 = stored.refined[task], bfm.prompt.reward(task), bfm.prompt.reward(task, refined=False)
         np.testing.assert_array_equal(z, stored.z[task])
-        start = record.get("start", z0)  # sit's search started from a screened z (--refine-from), the others at z0
-        assert ("start" in record) == (task == "sitonground"), task
+        start = record.get("start", z0)
+        assert ("start" in record) == (task in SCREENED), task
         assert 0.8 < z @ start / bfm.z_dim < 0.99, task  # a nearby z, not the one the search started from
         assert (record["generations"], record["population"], record["starts"], record["steps"], record["seed"]) == (
             15, 16, 16, 300, 3)
-        assert record["score"] > record["score0"] + 0.3, task  # the mean reward per step on its search starts
+        # the mean reward per step on its search starts; a screened start already does some of the behaviour
+        assert record["score"] > record["score0"] + (0.05 if task in SCREENED else 0.3), task
