@@ -21,7 +21,8 @@ def test_the_named_prompts_are_regressed_again_and_the_others_kept(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # written with today's formula revisions: nothing stale
         after = BFM.load(out).reward_prompts
-    assert sorted(after.refined) == ["move-ego-0-4", "rotate-z-5-0.8", "sitonground"]  # the re-inferred task's refinement is gone
+    # the re-inferred task's refinement is gone
+    assert sorted(after.refined) == ["move-ego-0-4", "rotate-z-5-0.8", "sitonground"]
     assert after.revisions == before.revisions and after.states == before.states
     for task in ("raisearms-h-h", "jump-2"):  # the same states, so the regression gives the stored zero-shot z back
         z, z0 = after.z[task], before.zero_shot(task)
