@@ -103,10 +103,10 @@ def _move(angle: float, speed: float) -> Judge:
 def _jump(tr: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     rest = standing_heights()
     settled = slice(CONTROL_HZ, None)  # a fall start drops from up to 1 m: that is not a jump
+    pelvis = tr.z("Pelvis")[settled]
     # feet raised by a body lying on its back are not a flight: the pelvis must be at standing height
-    flight = np.all([tr.z(b)[settled] > rest[b] + FLIGHT_CLEARANCE for b in FEET], axis=0) & (
-        tr.z("Pelvis")[settled] > STANDING)  # (T, E)
-    gain = tr.z("Pelvis")[settled].max(0) - rest["Pelvis"]
+    flight = np.all([tr.z(b)[settled] > rest[b] + FLIGHT_CLEARANCE for b in FEET], axis=0) & (pelvis > STANDING)
+    gain = pelvis.max(0) - rest["Pelvis"]
     return flight.any(0) & (gain >= JUMP_GAIN), {"apex_gain": gain, "flight_steps": flight.sum(0).astype(float)}
 
 

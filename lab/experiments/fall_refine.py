@@ -54,7 +54,8 @@ def main() -> None:
                  search=search, on_generation=show)
     args.save.parent.mkdir(parents=True, exist_ok=True)
     np.save(args.save, got.z)
-    print(f"{args.objective} from {args.starts} {'standing' if args.standing else 'fall'} starts: {got.score0:.3f} -> {got.score:.3f} "
+    kind = "standing" if args.standing else "fall"
+    print(f"{args.objective} from {args.starts} {kind} starts: {got.score0:.3f} -> {got.score:.3f} "
           f"({got.episodes} episodes, cos(z, z0) {got.cosine:.3f}); z saved to {args.save}")
 
 
