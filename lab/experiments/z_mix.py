@@ -1,0 +1,52 @@
+"""z's between two prompts: project((1 - a) z_A + a z_B) onto the policy's sphere, saved for `z_search.py --judge`.
+
+A family no single prompt passes may sit between two prompts that each do part of it (crouch: between the sit
+prompt's low pelvis and the crouch prompt's upright stance).
+
+    python lab/experiments/z_mix.py pretrained --prompts reward:sitonground reward:crouch-0 goal:crouch_low \\
+        --alphas 0.25 0.5 0.75 --out runs/s56/mix
+"""
+from __future__ import annotations
+
+import argparse
+import itertools
+from pathlib import Path
+
+import numpy as np
+
+from fbcpr import BFM
+from fbcpr.inference.refine import project
+
+
+def prompt_z(bfm: BFM, spec: str) -> np.ndarray:
+    """`reward:NAME`, `goal:NAME` or `z:FILE.npy` -> the (d,) z."""
+    kind, _, name = spec.partition(":")
+    if kind == "reward":
+        return np.asarray(bfm.prompt.reward(name), np.float64)
+    if kind == "goal":
+        return np.asarray(bfm.prompt.goal(name), np.float64)
+    if kind == "z":
+        return np.load(name, allow_pickle=False).astype(np.float64)
+    raise SystemExit(f"--prompts: {spec!r} must be reward:NAME, goal:NAME or z:FILE.npy")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("checkpoint")
+    ap.add_argument("--prompts", nargs="+", required=True, help="every pair of these is mixed")
+    ap.add_argument("--alphas", type=float, nargs="+", default=[0.25, 0.4, 0.5, 0.6, 0.75])
+    ap.add_argument("--out", type=Path, required=True)
+    args = ap.parse_args()
+    bfm = BFM.load(args.checkpoint)
+    zs = {spec: prompt_z(bfm, spec) for spec in args.prompts}
+    args.out.mkdir(parents=True, exist_ok=True)
+    for a, b in itertools.combinations(args.prompts, 2):
+        mixed = project(np.outer(1 - np.asarray(args.alphas), zs[a]) + np.outer(args.alphas, zs[b]))
+        for alpha, z in zip(args.alphas, mixed):
+            name = f"{a}+{b}@{alpha:g}".replace(":", "-").replace("/", "_")
+            np.save(args.out / f"{name}.npy", z.astype(np.float32))
+    print(f"{len(list(args.out.glob('*.npy')))} z's in {args.out}")
+
+
+if __name__ == "__main__":
+    main()
