@@ -30,6 +30,12 @@ def prompt_z(bfm: BFM, spec: str) -> np.ndarray:
     raise SystemExit(f"--prompts: {spec!r} must be reward:NAME, goal:NAME or z:FILE.npy")
 
 
+def label(spec: str) -> str:
+    """A file-name-safe label: `reward:NAME` -> `reward-NAME`, `z:DIR/FILE.npy` -> `z-FILE`."""
+    kind, _, name = spec.partition(":")
+    return f"{kind}-{Path(name).stem if kind == 'z' else name}".replace("/", "_")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint")
@@ -43,7 +49,7 @@ def main() -> None:
     for a, b in itertools.combinations(args.prompts, 2):
         mixed = project(np.outer(1 - np.asarray(args.alphas), zs[a]) + np.outer(args.alphas, zs[b]))
         for alpha, z in zip(args.alphas, mixed):
-            name = f"{a}+{b}@{alpha:g}".replace(":", "-").replace("/", "_")
+            name = f"{label(a)}+{label(b)}@{alpha:g}"
             np.save(args.out / f"{name}.npy", z.astype(np.float32))
     print(f"{len(list(args.out.glob('*.npy')))} z's in {args.out}")
 
