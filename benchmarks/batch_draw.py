@@ -16,15 +16,15 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
 
-from fbcpr.train.buffer import ReplayBuffer, transition_specs
 from fbcpr.core.config import config_from_dict
-from fbcpr.train.device_batches import DeviceBatches
 from fbcpr.methods.fb_cpr.agent import FBCPRAgent
+from fbcpr.train.buffer import ReplayBuffer, transition_specs
+from fbcpr.train.device_batches import DeviceBatches
 from motions.library import MotionLibrary
 
 SIZES = {"tiny": 256, "small": 256, "paper-S": 1024}
@@ -81,7 +81,8 @@ def main() -> None:
     rng = np.random.default_rng(0)
     print(f"torch {torch.__version__}, {device}" + (f" ({torch.cuda.get_device_name()})" if device.type == "cuda"
           else f", {args.threads} threads") + f", {args.rows:,} transitions, {args.updates} updates per run")
-    print(f"{'size':8s} {'batch':>5s} {'update':8s} {'draw from':12s} {'draw ms':>8s} {'ms/update':>10s} {'vs update only':>15s}")
+    print(f"{'size':8s} {'batch':>5s} {'update':8s} {'draw from':12s} {'draw ms':>8s} {'ms/update':>10s} "
+          f"{'vs update only':>15s}")
     for preset in args.sizes:
         n = SIZES[preset]
         cfg = config_from_dict({"model": {"preset": preset, "obs_dim": OBS, "action_dim": ACT},

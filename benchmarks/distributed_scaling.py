@@ -31,8 +31,8 @@ import torch.distributed as dist
 import torch.multiprocessing as mp
 
 from fbcpr.core.config import find_config, load_config
-from fbcpr.core.schema import dump_config
 from fbcpr.core.registry import get_method
+from fbcpr.core.schema import dump_config
 
 ROOT = Path(__file__).resolve().parents[1]
 

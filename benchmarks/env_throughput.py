@@ -16,13 +16,13 @@ import time
 
 import mujoco
 import numpy as np
+from mujoco import batch as mjbatch
 
 from humanoid_env.actions import ActionMap
 from humanoid_env.env import HumanoidEnv
 from humanoid_env.inits import DefaultInit, MocapInit
 from humanoid_env.model import N_SUBSTEPS, load_model
 from humanoid_env.vector import VectorHumanoidEnv
-from mujoco import batch as mjbatch
 
 EPISODE = 300
 
@@ -96,7 +96,8 @@ def main() -> None:
     sizes = np.array([args.steps, args.steps, args.steps * args.envs, args.steps * args.envs])
     rate = sizes / runs  # steps/s per repeat
     names = ["raw mj_step", "HumanoidEnv", f"raw Batch.step x{args.envs}", f"VectorHumanoidEnv x{args.envs}"]
-    print(f"cores: {os.cpu_count()}, batch threads: {args.threads}, steps per env: {args.steps}, repeats: {args.repeats}")
+    print(f"cores: {os.cpu_count()}, batch threads: {args.threads}, steps per env: {args.steps}, "
+          f"repeats: {args.repeats}")
     print(f"{'case':<28}{'steps/s best':>14}{'steps/s median':>16}")
     for i, name in enumerate(names):
         print(f"{name:<28}{rate[:, i].max():>14.0f}{np.median(rate[:, i]):>16.0f}")

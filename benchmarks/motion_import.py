@@ -100,16 +100,19 @@ def main() -> None:
         total_frames += row[2]
         rows.append((f"deepmimic/{p.stem.removeprefix('humanoid3d_')}", *row))
     with tempfile.TemporaryDirectory() as tmp:
-        for path, label in ((synthetic_amass(Path(tmp)), "amass (synthetic, 120 Hz)"), (synthetic_bvh(Path(tmp)), "bvh (synthetic, 60 Hz)")):
+        for path, label in ((synthetic_amass(Path(tmp)), "amass (synthetic, 120 Hz)"),
+                            (synthetic_bvh(Path(tmp)), "bvh (synthetic, 60 Hz)")):
             rows.append((label, *time_import(path)))
-    print(f"| {'clip':30s} | motion s | frames | compute s | motion s / s | frames/s | clipped | max pen. (m) | max contact gap (m) |")
+    print(f"| {'clip':30s} | motion s | frames | compute s | motion s / s | frames/s | clipped | max pen. (m) "
+          "| max contact gap (m) |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for label, seconds, compute, frames, clipped, pen, gap in rows:
         print(f"| {label:30s} | {seconds:8.1f} | {frames:6d} | {compute:9.2f} | {seconds / compute:12.1f} | "
               f"{frames / compute:8.0f} | {clipped:7d} | {pen:12.3f} | {gap:19.3f} |")
     if clips:
-        print(f"all DeepMimic: {total_motion:.1f} s of motion in {total_compute:.1f} s = {total_motion / total_compute:.1f} s/s, "
-              f"{total_frames / total_compute:.0f} frames/s (mj_kinematics is {kin / (total_frames / total_compute):.0f}x that)")
+        rate = total_frames / total_compute
+        print(f"all DeepMimic: {total_motion:.1f} s of motion in {total_compute:.1f} s = "
+              f"{total_motion / total_compute:.1f} s/s, {rate:.0f} frames/s (mj_kinematics is {kin / rate:.0f}x that)")
 
 
 if __name__ == "__main__":

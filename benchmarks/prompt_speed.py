@@ -23,8 +23,8 @@ import time
 import numpy as np
 import torch
 
-from fbcpr.inference.bfm import BFM
 from fbcpr.core.config import config_from_dict
+from fbcpr.inference.bfm import BFM
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 
 TASKS = ["move-ego-0-2", "crouch-0", "raisearms-h-l", "sitonground", "move-ego-0-2*raisearms-h-h"]
@@ -130,7 +130,8 @@ def main() -> None:
     obs_t, z_t = torch.as_tensor(obs), torch.as_tensor(z)
     t_torch = latency(lambda: bfm.act(obs_t, z_t), args.act_calls)
     print(f"\nact() at batch 1, median of {args.act_calls} calls; target <= 2 ms")
-    print(f"  {f'reference: one Linear({cfg.model.hidden_dim},{cfg.model.hidden_dim}) forward':46s} {t_ref * 1e3:8.3f} ms")
+    ref_name = f"reference: one Linear({cfg.model.hidden_dim},{cfg.model.hidden_dim}) forward"
+    print(f"  {ref_name:46s} {t_ref * 1e3:8.3f} ms")
     print(f"  {'bfm.act(numpy (358,), numpy z)':46s} {t_np * 1e3:8.3f} ms  ({t_np / t_ref:5.1f}x the layer)")
     print(f"  {'bfm.act(torch (358,), torch z)':46s} {t_torch * 1e3:8.3f} ms  ({t_torch / t_ref:5.1f}x the layer)")
 

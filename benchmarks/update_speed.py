@@ -20,9 +20,9 @@ import time
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
+from fbcpr.core.config import config_from_dict
 from fbcpr.methods.fb_cpr import losses
 from fbcpr.methods.fb_cpr.agent import FBCPRAgent
-from fbcpr.core.config import config_from_dict
 from fbcpr.nn.cuda_graph import make_capturable
 from fbcpr.nn.networks import project_sphere
 
@@ -82,8 +82,9 @@ def straightforward_update(agent: FBCPRAgent, batch: dict, windows: torch.Tensor
         tFz = losses.pessimistic((F2 * z).sum(-1), cfg.fz_pessimism)
     B2 = m.backward_map(s2)
     Fsa = m.forward_map(s, act, z)
-    loss = losses.fb_loss(torch.einsum("mid,jd->mij", Fsa, B2), tM, disc) + cfg.ortho_coef * losses.ortho_loss(
-        m.backward_map(s2)) + cfg.fz_coef * losses.td_loss((Fsa * z).sum(-1), losses.implicit_reward(B2.detach(), z), tFz, disc)
+    fz = losses.td_loss((Fsa * z).sum(-1), losses.implicit_reward(B2.detach(), z), tFz, disc)
+    loss = (losses.fb_loss(torch.einsum("mid,jd->mij", Fsa, B2), tM, disc)
+            + cfg.ortho_coef * losses.ortho_loss(m.backward_map(s2)) + cfg.fz_coef * fz)
     opt["forward_map"].zero_grad()
     opt["backward_map"].zero_grad()
     loss.backward()
@@ -229,9 +230,10 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     devices = ["cpu"] + (["cuda"] if args.gpu and torch.cuda.is_available() else [])
-    print(f"torch {torch.__version__}, {args.threads} CPU threads" + (f", {torch.cuda.get_device_name()}" if "cuda" in devices else ""))
-    print(f"{'size':8s} {'device':14s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} {'ratio':>6s} "
-          f"{'straightforward ms':>19s}")
+    gpu_name = f", {torch.cuda.get_device_name()}" if "cuda" in devices else ""
+    print(f"torch {torch.__version__}, {args.threads} CPU threads{gpu_name}")
+    print(f"{'size':8s} {'device':14s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} "
+          f"{'ratio':>6s} {'straightforward ms':>19s}")
     if args.graph and "cuda" in devices:
         for preset in args.sizes:
             print("agreement", graph_agreement(preset), flush=True)
@@ -245,7 +247,8 @@ def main() -> None:
             compiled = [(bf16, True, reg) for bf16, _, reg in eager] if args.compile and dev != "cpu" else []
             variants = [(bf16, comp, reg, False) for bf16, comp, reg in
                         eager + [(False, False, "near")] * args.near + compiled]
-            variants += [(bf16, False, "discriminator", True) for bf16, _, _ in eager] if args.graph and dev != "cpu" else []
+            if args.graph and dev != "cpu":
+                variants += [(bf16, False, "discriminator", True) for bf16, _, _ in eager]
             for bf16, compile_, regulariser, graph in variants:
                 agent, batch, windows = make(preset, dev, compile_, bf16, regulariser, graph)
                 t = time_update(agent, batch, windows, dev, reps)
