@@ -1,6 +1,8 @@
 """Can this body jump, or crouch and hold it? The sampling planner tracks a reference, judged by the behaviour check.
 
-    python lab/experiments/skill_planner.py --skill jump --seeds 0 1 --save data/demos/jump
+    python lab/experiments/skill_planner.py --skill crouch --pose crouch_medium --ramp 1 --save data/demos/crouch
+    python lab/experiments/skill_planner.py --skill jump --seeds 0 1 --steps 75 \
+        --planner samples=64 noise=0.2 iterations=2 elites=4 --save data/demos/jump
 
 No prompt of the shipped model jumps or crouches (lab/log.md sections 54-56), and tracking DeepMimic's jump the
 model peaks 0.04 m above standing. Before training at scale for them, this asks what section 32 asked of getting
@@ -8,7 +10,7 @@ up: does the physics allow it, with this env's PD gains and torque limits? `plan
 
 - jump: DeepMimic's jump clip from its first frame (standing), after `--hold` seconds of that frame, since the
   behaviour check reads a jump only after the first second;
-- crouch: the default standing pose lowered into the named goal pose (`--pose`) over one second, then held.
+- crouch: the default standing pose lowered into the named goal pose (`--pose`) over `--ramp` seconds, then held.
 
 Each planned motion is judged by the family's own rule (`fbcpr.eval.behaviours`), next to the zero action from
 the same start. `--save DIR` writes each motion that passes as a demonstration (the states and the actions that
