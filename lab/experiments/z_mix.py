@@ -13,21 +13,18 @@ import itertools
 from pathlib import Path
 
 import numpy as np
+from contact_sheet import prompt_zs
 
 from fbcpr import BFM
 from fbcpr.inference.refine import project
 
 
 def prompt_z(bfm: BFM, spec: str) -> np.ndarray:
-    """`reward:NAME`, `goal:NAME` or `z:FILE.npy` -> the (d,) z."""
-    kind, _, name = spec.partition(":")
-    if kind == "reward":
-        return np.asarray(bfm.prompt.reward(name), np.float64)
-    if kind == "goal":
-        return np.asarray(bfm.prompt.goal(name), np.float64)
-    if kind == "z":
-        return np.load(name, allow_pickle=False).astype(np.float64)
-    raise SystemExit(f"--prompts: {spec!r} must be reward:NAME, goal:NAME or z:FILE.npy")
+    """`reward:NAME`, `goal:NAME` or `z:FILE.npy` -> the (d,) z, resolved (and a z file checked) as the contact
+    sheet resolves its prompts; a tracking prompt is a z per step, not one z to mix."""
+    if spec.partition(":")[0] not in ("reward", "goal", "z"):
+        raise SystemExit(f"--prompts: {spec!r} must be reward:NAME, goal:NAME or z:FILE.npy")
+    return prompt_zs(bfm, spec, 1)[0][0].astype(np.float64)
 
 
 def label(spec: str) -> str:
