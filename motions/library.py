@@ -2,6 +2,7 @@
 init, and per-motion priorities driven by tracking EMD (FB-CPR App. C: EMD clipped to [0.5, 5], bins of 0.5)."""
 from __future__ import annotations
 
+import fnmatch
 import hashlib
 import os
 from collections.abc import Iterable, Sequence
@@ -33,6 +34,11 @@ def split_name(name: str, test_fraction: float) -> bool:
     """True when a clip belongs to the test split; a hash of the name, so it is stable across runs and machines."""
     h = int.from_bytes(hashlib.sha256(name.encode("utf-8")).digest()[:8], "big")
     return h / 2.0**64 < test_fraction
+
+
+def matching_names(names: Sequence[str], patterns: Sequence[str]) -> np.ndarray:
+    """(names,) bool: which names match any of the shell-style `patterns` (`fnmatch`, case-sensitive)."""
+    return np.array([any(fnmatch.fnmatchcase(n, p) for p in patterns) for n in names], dtype=bool)
 
 
 class MotionLibrary:
@@ -112,13 +118,22 @@ class MotionLibrary:
 
     def sample_windows(self, rng: np.random.Generator, n: int, length: int) -> np.ndarray:
         """(n, length, 358) windows of consecutive observations from clips drawn by priority."""
+        return self.sample_window_clips(rng, n, length)[0]
+
+    def sample_window_clips(self, rng: np.random.Generator, n: int, length: int) -> tuple[np.ndarray, np.ndarray]:
+        """`sample_windows` and the index of the clip each window came from (n,), for losses that treat some
+        clips apart (`agent.anchor_free`)."""
         allowed = self.lengths >= length
         if not allowed.any():
             raise ValueError(f"sample_windows: no clip has {length} frames (longest has {self.lengths.max()})")
         m = self._pick(rng, n, allowed)
         start = (rng.random(n) * (self.lengths[m] - length + 1)).astype(int)
         idx = (self.offsets[m] + start)[:, None] + np.arange(length)[None]
-        return self._obs[idx]
+        return self._obs[idx], m
+
+    def matching(self, patterns: Sequence[str]) -> np.ndarray:
+        """(clips,) bool: the clips whose name matches any of the shell-style `patterns`."""
+        return matching_names(self.names, patterns)
 
     def sample_states(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         """(qpos (n,76), qvel (n,75)): a clip by priority, then a frame uniformly inside it (the MoCap init)."""

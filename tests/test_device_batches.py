@@ -92,6 +92,10 @@ def test_windows_are_consecutive_frames_of_one_clip_long_enough_and_follow_prior
     lib.priorities = np.array([0.0, 1.0, 0.0, 0.0])                           # replaced, as a priority refresh does
     _, windows = batches.sample(4, 500, 5)
     assert bool((windows[..., 0] // 1000 == 1).all())
+    lib.priorities = np.array([1.0, 1.0, 3.0, 0.0])
+    batch, windows = batches.sample(4, 300, 5, clips=True)                     # each window marked with its clip
+    torch.testing.assert_close(batch["window_clip"].float(), windows[:, 0, 0] // 1000)
+    assert "window_clip" not in batches.sample(4, 3, 5)[0]
 
 
 def test_the_frames_are_the_motion_librarys():

@@ -25,10 +25,10 @@ def far_from(x: float):
     return lambda next_obs, qpos, qvel: np.exp(-np.abs(next_obs[:, 0] - x))
 
 
-def make_agent(**agent):
+def make_agent(free=None, **agent):
     cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 6, "action_dim": 3},
                             "agent": {"batch_size": 32, **agent}})
-    return FBCPRAgent(cfg.model, cfg.agent, seed=0, task_reward=lambda name: far_from(float(name)))
+    return FBCPRAgent(cfg.model, cfg.agent, seed=0, task_reward=lambda name: far_from(float(name)), free=free)
 
 
 def batches(agent, k):
@@ -77,6 +77,59 @@ def test_actor_anchor_holds_the_mean_on_demonstration_pairs_and_nothing_else():
         if coef > 0:  # the actor still learns away from the demonstration pairs
             assert free > 2 * gaps[coef], (free, gaps[coef])
     assert 0 < gaps[30.0] < 0.3 * gaps[0.0], gaps
+
+
+def test_anchor_free_clips_leave_their_windows_to_learn_while_the_others_stay_held():
+    free = np.array([False, True])          # clip 0 is held, clip 1 (a new skill's) is left free
+    gaps = {}
+    for coef in (0.0, 30.0):
+        agent = make_agent(free if coef else None, anchor_actor=coef, lr_actor=3e-3,
+                           **({"anchor_free": ["new-*"]} if coef else {}))
+        agent.warm_started()
+        start = ActorAnchor(agent.model)
+        data = batches(agent, 40)
+        for i, (batch, windows) in enumerate(data):
+            windows[2:] -= 3.0                    # windows 2 and 3 come from the free clip, far from the held ones
+            batch["window_clip"] = torch.tensor([0, 0, 1, 1])
+            agent.update(batch, windows)
+        m = agent.model
+        with torch.no_grad():
+            windows = data[0][1]
+            for name, part in (("held", windows[:2]), ("free", windows[2:])):
+                flat = part.reshape(-1, 6)
+                z = encode_windows(m, m.normalize(part)).repeat_interleave(8, 0)
+                gaps[coef, name] = float(start.gap(m, flat, m.normalize(flat), z))
+    assert gaps[30.0, "held"] < 0.3 * gaps[0.0, "held"], gaps        # held as the plain anchor holds
+    assert gaps[30.0, "free"] > 0.5 * gaps[0.0, "free"], gaps        # and the free windows move as if unanchored
+    assert gaps[30.0, "free"] > 3 * gaps[30.0, "held"], gaps
+    with pytest.raises(ValueError, match="anchor_free needs each window's clip"):
+        agent.update(*batches(agent, 1)[0])
+
+
+def test_anchor_free_names_clips_of_the_library_and_the_trainer_marks_each_window(tmp_path):
+    with pytest.raises(ConfigError, match="anchor_free: .*needs agent.anchor_actor > 0"):
+        toy_cfg(anchor_free=["circle-*"])
+    held = {"freeze_backward": True, "anchor_actor": 1.0}
+    Trainer(toy_cfg(), tmp_path / "base", progress=False).save()
+    for patterns, match in ((["circle-*", "jump*"], "'jump\\*' matches no clip of env.motions"),
+                            (["*"], ".* match all 5 clips, so the anchor would hold nothing")):
+        with pytest.raises(ConfigError, match=f"agent.anchor_free: {match}"):
+            Trainer(toy_cfg(anchor_free=patterns, **held), tmp_path / "x", progress=False,
+                    init_from=tmp_path / "base")
+    run = Trainer(toy_cfg(anchor_free=["circle-*"], **held), tmp_path / "held", progress=False,
+                  init_from=tmp_path / "base")
+    library = run.bundle.library
+    np.testing.assert_array_equal(run.agent.free.numpy(), [n.startswith("circle-") for n in library.names])
+    run.run(max_env_steps=100)
+    batch, windows = run.sample_batch()
+    clip = batch["window_clip"].numpy()
+    for window, m in zip(windows.numpy(), clip):       # each window lies inside the clip it is marked with
+        frames = library.frames[library.offsets[m]:library.offsets[m] + library.lengths[m]]
+        assert np.any(np.all(np.isclose(frames, window[0]), axis=1))
+    assert "anchor_gap" in run.agent.update(batch, windows)
+    plain = Trainer(toy_cfg(**held), tmp_path / "plain", progress=False, init_from=tmp_path / "base")
+    plain.run(max_env_steps=100)
+    assert "window_clip" not in plain.sample_batch()[0]
 
 
 def toy_cfg(train=None, **agent):

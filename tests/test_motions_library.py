@@ -58,6 +58,17 @@ def test_windows_are_consecutive_observations_of_one_clip(lib):
         lib.sample_windows(rng, 1, 41)
 
 
+def test_windows_name_their_clip_and_patterns_pick_clips_by_name(lib):
+    w, clip = lib.sample_window_clips(np.random.default_rng(3), 100, 4)
+    assert clip.shape == (100,) and set(clip) == {0, 1, 2, 3}
+    speeds = np.array([1.0, 2.0, 3.0, 4.0])        # each clip's root x velocity (observation column 214)
+    np.testing.assert_allclose(w[:, :, 214], np.repeat(speeds[clip][:, None], 4, 1), atol=1e-4)
+    np.testing.assert_array_equal(lib.sample_window_clips(np.random.default_rng(3), 100, 4)[0], w)
+    np.testing.assert_array_equal(lib.sample_windows(np.random.default_rng(3), 100, 4), w)   # the same draw
+    np.testing.assert_array_equal(lib.matching(["a", "[cd]"]), [True, False, True, True])
+    assert not lib.matching(["A", "x*"]).any()      # case-sensitive, whole names
+
+
 def test_sample_states_returns_clip_frames(lib):
     qpos, qvel = lib.sample_states(np.random.default_rng(2), 50)
     assert qpos.shape == (50, 76) and qvel.shape == (50, 75)

@@ -10,6 +10,8 @@
     checkpoint agent.model (-> model.safetensors), agent.state() / load_state() (-> trainer_state.safetensors)
     optional   agent.observe(obs, next_obs, z) # each batch of online transitions as collected, with the rollout
                                                # latents (NEAR's annealing)
+               agent.window_clips: bool        # True: each batch carries batch["window_clip"], the library index
+                                               # of each expert window's clip (FB-CPR's `agent.anchor_free`)
 
 `ImitationReward` is a reward learned from demonstrations that plugs into any RL agent: `fit` on expert
 transitions (and, for adversarial rewards, the agent's own), then a batched `reward(obs, next_obs[, z])`. It is

@@ -9,7 +9,7 @@ like the humanoid's reward registry.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -21,7 +21,7 @@ from gymnasium.vector.utils import batch_space
 from fbcpr.core.errors import ConfigError
 from fbcpr.core.protocols import EnvBundle, TaskReward
 from fbcpr.core.schema import EnvConfig
-from motions.library import priorities_from_emd
+from motions.library import matching_names, priorities_from_emd
 
 OBS_DIM, ACTION_DIM, NQ, NV = 2, 2, 2, 2
 STEP = 0.1
@@ -203,9 +203,15 @@ class DemoLibrary:
         return rng.choice(len(self.clips), size=n, p=self.priorities / self.priorities.sum())
 
     def sample_windows(self, rng: np.random.Generator, n: int, length: int) -> np.ndarray:
+        return self.sample_window_clips(rng, n, length)[0]
+
+    def sample_window_clips(self, rng: np.random.Generator, n: int, length: int) -> tuple[np.ndarray, np.ndarray]:
         m = self._pick(rng, n)
         start = (rng.random(n) * (self.lengths[m] - length + 1)).astype(int)
-        return self._obs[(self.offsets[m] + start)[:, None] + np.arange(length)[None]]
+        return self._obs[(self.offsets[m] + start)[:, None] + np.arange(length)[None]], m
+
+    def matching(self, patterns: Sequence[str]) -> np.ndarray:
+        return matching_names(self.names, patterns)
 
     def sample_states(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         m = self._pick(rng, n)

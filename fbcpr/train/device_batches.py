@@ -64,22 +64,26 @@ class DeviceBatches:
                 chunk = np.ascontiguousarray(self.buffer.data[f][start:stop])
                 self.rows[f][start:stop] = torch.from_numpy(chunk).to(self.device)
 
-    def sample(self, n: int, windows: int, length: int) -> tuple[dict[str, Tensor], Tensor]:
+    def sample(self, n: int, windows: int, length: int, clips: bool = False) -> tuple[dict[str, Tensor], Tensor]:
         """n transitions uniformly with replacement (the trainer's fields) and `windows` demonstration windows of
-        `length` consecutive frames, (windows, length, obs_dim), all on the device."""
+        `length` consecutive frames, (windows, length, obs_dim), all on the device; with `clips`, the batch's
+        "window_clip" holds the library index of each window's clip (windows,)."""
         size = len(self.buffer)
         if size == 0:
             raise RuntimeError("DeviceBatches.sample: the replay buffer is empty")
         idx = torch.randint(size, (n,), device=self.device, generator=self.generator)
         batch = {f: self.rows[f].index_select(0, idx) for f in self.fields}
-        return batch, self._windows(windows, length)
+        frames, clip = self._windows(windows, length)
+        if clips:
+            batch["window_clip"] = clip
+        return batch, frames
 
-    def _windows(self, n: int, length: int) -> Tensor:
+    def _windows(self, n: int, length: int) -> tuple[Tensor, Tensor]:
         u = torch.rand(2, n, device=self.device, generator=self.generator)
         clip = torch.searchsorted(self._clip_cdf(length), u[0], right=True)
         start = (u[1] * (self.lengths[clip] - length + 1)).long()
         frame = (self.offsets[clip] + start)[:, None] + torch.arange(length, device=self.device)
-        return self.frames[frame]
+        return self.frames[frame], clip
 
     def _clip_cdf(self, length: int) -> Tensor:
         """Cumulative clip probabilities for windows of `length`: priorities of the clips that are long enough,

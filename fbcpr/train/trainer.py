@@ -380,13 +380,19 @@ class Trainer:
     def sample_batch(self) -> tuple[dict[str, Any], torch.Tensor]:
         """One update's draw, as training takes it: a replay batch and expert windows of the motion library."""
         a = self.batching
+        clips = getattr(self.agent, "window_clips", False)  # agents that treat some clips' windows apart
         if self.batches is not None:
-            batch, windows = self.batches.sample(a.batch_size, a.batch_size // a.seq_length, a.seq_length)
+            batch, windows = self.batches.sample(a.batch_size, a.batch_size // a.seq_length, a.seq_length, clips)
         else:
             batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields,
                                        history=getattr(self.agent, "history", 0))  # states before obs: sequence rewards
-            windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, a.batch_size // a.seq_length,
-                                                                         a.seq_length))
+            library, w = self.bundle.library, a.batch_size // a.seq_length
+            if clips:
+                frames, clip = library.sample_window_clips(self.rng, w, a.seq_length)
+                batch["window_clip"] = torch.as_tensor(clip)
+            else:
+                frames = library.sample_windows(self.rng, w, a.seq_length)
+            windows = torch.as_tensor(frames)
         if self.demos is not None:
             batch = self._with_demonstrations(batch)
         return batch, windows

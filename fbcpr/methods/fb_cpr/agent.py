@@ -9,8 +9,8 @@ The actor loss evaluates F and Q with detached weights, so one backward leaves t
 With `agent.regulariser: near` a z-conditioned energy (`fbcpr.rewards.near.conditional`) takes the discriminator's
 place: its DSM loss joins the one backward and its anchored energy is the critic's reward.
 A continued run can hold B and the normaliser fixed (`agent.freeze_backward`) and anchor the actor on demonstration
-states (`agent.anchor_actor`, `fbcpr.methods.fb_cpr.anchor`), and on the batch's states under named reward prompts
-(`agent.anchor_rewards`).
+states (`agent.anchor_actor`, `fbcpr.methods.fb_cpr.anchor`) but those of a new skill's clips (`agent.anchor_free`),
+and on the batch's states under named reward prompts (`agent.anchor_rewards`).
 On CUDA, `agent.cuda_graph` captures the whole step (`_train_step`) in one CUDA graph and replays it.
 """
 from __future__ import annotations
@@ -27,7 +27,7 @@ from fbcpr.core.errors import ConfigError
 from fbcpr.core.protocols import TaskReward
 from fbcpr.core.schema import Config, ModelConfig
 from fbcpr.methods.fb_cpr import losses
-from fbcpr.methods.fb_cpr.anchor import ActorAnchor, reward_prompts
+from fbcpr.methods.fb_cpr.anchor import ActorAnchor, free_clips, reward_prompts
 from fbcpr.methods.fb_cpr.config import AgentConfig
 from fbcpr.methods.fb_cpr.imitation import discriminator_terms, encode_windows
 from fbcpr.methods.fb_cpr.model import FBCPRModel
@@ -52,8 +52,10 @@ class FBCPRAgent:
     fields = ("obs", "action", "next_obs", "z", "terminated")
 
     def __init__(self, model_cfg: ModelConfig, agent_cfg: AgentConfig, device: str | torch.device = "cpu",
-                 seed: int = 0, task_reward: Callable[[str], TaskReward] | None = None) -> None:
-        """task_reward: the env's reward of a task name (`EnvBundle.task_reward`), for `agent.anchor_rewards`."""
+                 seed: int = 0, task_reward: Callable[[str], TaskReward] | None = None,
+                 free: np.ndarray | None = None) -> None:
+        """task_reward: the env's reward of a task name (`EnvBundle.task_reward`), for `agent.anchor_rewards`;
+        free: (clips,) bool, the motion library's clips whose windows the anchor leaves free (`agent.anchor_free`)."""
         self.cfg = agent_cfg
         self.device = torch.device(device)
         self.bf16 = resolve_bf16(agent_cfg.bf16, self.device)
@@ -72,6 +74,10 @@ class FBCPRAgent:
                               "the held reward prompts")
         self.held_rewards = {k: task_reward(k) for k in agent_cfg.anchor_rewards} if task_reward else {}
         self.anchor = ActorAnchor(self.model, len(self.held_rewards)) if agent_cfg.anchor_actor > 0 else None
+        if agent_cfg.anchor_free and free is None:
+            raise ConfigError("agent.anchor_free: the agent needs the motion library's clips (free) to leave them free")
+        self.free = None if free is None else torch.as_tensor(free, dtype=torch.bool, device=self.device)
+        self.window_clips = self.free is not None  # the trainer then marks each window's clip ("window_clip")
         # the NEAR regulariser, which replaces the discriminator's training
         self.energy: ConditionalEnergy | None = None
         if agent_cfg.regulariser == "near":
@@ -101,7 +107,8 @@ class FBCPRAgent:
         agent_cfg = cfg.agent
         assert isinstance(agent_cfg, AgentConfig)  # what a config of algorithm fb_cpr reads its agent section as
         return cls(cfg.model, agent_cfg, device, seed,
-                   task_reward=bundle.task_reward if agent_cfg.anchor_rewards else None)
+                   task_reward=bundle.task_reward if agent_cfg.anchor_rewards else None,
+                   free=free_clips(bundle.library, agent_cfg.anchor_free) if agent_cfg.anchor_free else None)
 
     @property
     def z_dim(self) -> int:
@@ -187,6 +194,13 @@ class FBCPRAgent:
         inputs = {k: batch[k].to(dev, torch.float32) for k in ("obs", "action", "next_obs", "z")}
         inputs["terminated"] = batch["terminated"].to(dev, torch.float32).reshape(-1)
         inputs["expert"] = expert_windows.to(dev, torch.float32)
+        if self.free is None:
+            inputs["expert_held"] = torch.ones(expert_windows.shape[0], device=dev)
+        else:
+            if "window_clip" not in batch:
+                raise ValueError("FBCPRAgent.update: agent.anchor_free needs each window's clip in the batch "
+                                 "(\"window_clip\"), as the trainer samples it")
+            inputs["expert_held"] = (~self.free[batch["window_clip"].to(dev)]).float()
         return inputs
 
     def _train_step(self, inputs: dict[str, Tensor]) -> dict[str, Tensor]:
@@ -206,7 +220,8 @@ class FBCPRAgent:
         if self.energy is not None:
             self.energy.step_normalizer.update(expert[:, 1:] - expert[:, :-1])
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
-            out = self._compute(*(inputs[k] for k in ("obs", "action", "next_obs", "z", "terminated", "expert")))
+            out = self._compute(*(inputs[k] for k in ("obs", "action", "next_obs", "z", "terminated", "expert",
+                                                      "expert_held")))
         total = out.pop("_total")
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
@@ -216,7 +231,9 @@ class FBCPRAgent:
         return out
 
     def _losses(self, obs: Tensor, action: Tensor, next_obs: Tensor, z_buf: Tensor, terminated: Tensor,
-                expert: Tensor) -> dict[str, Tensor]:
+                expert: Tensor, expert_held: Tensor | None = None) -> dict[str, Tensor]:
+        """expert_held: (w,) 1 for the windows the actor anchor holds, 0 for those it leaves free (all held when
+        None)."""
         cfg, model, tg = self.cfg, self.model, self.targets
         w, L = expert.shape[:2]
         obs_n, next_n = model.normalize(obs), model.normalize(next_obs)
@@ -273,7 +290,8 @@ class FBCPRAgent:
         anchor_metrics, gap = {}, None
         if self.anchor is not None:  # the actor's mean on demonstration states under their own ER_FB latents
             gap = self.anchor.gap(model, expert.reshape(w * L, -1), expert_n.reshape(w * L, -1),
-                                  z_exp.detach().repeat_interleave(L, 0))
+                                  z_exp.detach().repeat_interleave(L, 0),
+                                  None if expert_held is None else expert_held.repeat_interleave(L, 0))
             anchor_metrics = {"anchor_gap": gap}
             if self.anchor.prompts is not None:  # and on the batch's states, each under a held reward prompt
                 task = torch.randint(self.anchor.prompts.shape[0], (obs.shape[0],), generator=self.generator,

@@ -8,11 +8,14 @@ demonstration windows, so the anchor penalises the actor for moving its mean on 
 latents, and leaves it free elsewhere: on fall and push states, and under reward prompts. The reward tasks were then
 what a held run still lost, so `agent.anchor_rewards` names reward tasks whose prompts the anchor holds too: the
 batch's states under each task's z, inferred once, through the frozen B, from the loaded model's reward-inference
-sample, as a reward prompt of the loaded model infers it.
+sample, as a reward prompt of the loaded model infers it. A run that adds demonstrations of a new skill names their
+clips in `agent.anchor_free`: the anchor leaves their windows free, or it would hold the actor at the loaded model's
+behaviour on the very states the run is to teach.
 """
 from __future__ import annotations
 
 import copy
+from typing import Any
 
 import numpy as np
 import torch
@@ -44,14 +47,35 @@ class ActorAnchor(nn.Module):
         self.actor.load_state_dict(model.actor.state_dict())
         self.obs_normalizer.load_state_dict(model.obs_normalizer.state_dict())
 
-    def gap(self, model: FBCPRModel, states: Tensor, states_n: Tensor, z: Tensor) -> Tensor:
+    def gap(self, model: FBCPRModel, states: Tensor, states_n: Tensor, z: Tensor, weight: Tensor | None = None
+            ) -> Tensor:
         """Mean squared difference between the model's tanh action mean at (states, z) and the anchor's.
 
         states: raw observations (n, obs), which the anchor normalises with its own statistics; states_n: the same
-        states under the model's normaliser; z: (n, d) latents."""
+        states under the model's normaliser; z: (n, d) latents; weight: (n,) 1 for the states held, 0 for those
+        left free (the mean is over the held ones; 0 when none is)."""
         with torch.no_grad():
             held = torch.tanh(self.actor(self.obs_normalizer(states), None, z)[0])
-        return (model.actor_mean(states_n, z) - held).square().mean()
+        sq = (model.actor_mean(states_n, z) - held).square()
+        if weight is None:
+            return sq.mean()
+        return (sq.mean(-1) * weight).sum() / weight.sum().clamp_min(1.0)
+
+
+def free_clips(library: Any, patterns: list[str]) -> np.ndarray:
+    """(clips,) bool: the clips of a motion library whose windows the anchor leaves free (`agent.anchor_free`).
+    Every pattern must name some clip, and some clip must stay held."""
+    names = list(library.names)
+    matched = [library.matching([p]) for p in patterns]
+    unmatched = [p for p, m in zip(patterns, matched) if not m.any()]
+    if unmatched:
+        raise ConfigError(f"agent.anchor_free: {unmatched[0]!r} matches no clip of env.motions "
+                          f"({len(names)} clips, e.g. {names[:3]})")
+    free = np.any(matched, axis=0)
+    if free.all():
+        raise ConfigError(f"agent.anchor_free: {patterns} match all {len(names)} clips, so the anchor would hold "
+                          "nothing; set agent.anchor_actor: 0 instead")
+    return free
 
 
 @torch.no_grad()

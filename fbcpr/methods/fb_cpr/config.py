@@ -39,6 +39,9 @@ class AgentConfig(MethodConfig):
     # reward tasks whose prompts the anchor holds as well: the batch's states under each task's z, inferred once
     # through the frozen B from the loaded model's reward-inference sample (needs freeze_backward and anchor_actor)
     anchor_rewards: list[str] = _f([])
+    # clips (shell-style patterns on clip names) whose windows the anchor leaves free: a new skill's demonstrations,
+    # which a continued run is to learn rather than hold at the loaded actor (needs anchor_actor)
+    anchor_free: list[str] = _f([])
     fb_pessimism: float = _f(0.0, NON_NEGATIVE)
     fz_pessimism: float = _f(0.5, NON_NEGATIVE)
     critic_pessimism: float = _f(0.5, NON_NEGATIVE)
@@ -64,6 +67,9 @@ class AgentConfig(MethodConfig):
         if self.anchor_rewards and not (self.freeze_backward and self.anchor_actor > 0):
             raise ConfigError(f"{prefix}.anchor_rewards: holds reward prompts inferred through a frozen B; needs "
                               f"{prefix}.freeze_backward: true and {prefix}.anchor_actor > 0")
+        if self.anchor_free and not self.anchor_actor > 0:
+            raise ConfigError(f"{prefix}.anchor_free: names clips that the actor anchor leaves free; needs "
+                              f"{prefix}.anchor_actor > 0")
         if len(set(self.anchor_rewards)) != len(self.anchor_rewards):
             raise ConfigError(f"{prefix}.anchor_rewards: a task is given twice in {self.anchor_rewards}")
         if self.cuda_graph and self.compile:
