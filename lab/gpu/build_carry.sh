@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# Run HERE (not on the device), with the project's venv active: fills the git-ignored paths a GPU lease carries.
+# Run HERE (not on the device), with the project's venv active: fills the git-ignored paths a GPU run carries.
 #   .whl/                  manylinux wheels, for the device's Python, of what its image lacks: mujoco (the
 #                          bindings in mujoco-core; the meta package's viewer and OpenGL deps are left out),
 #                          gymnasium and its deps, setuptools (builds fbcpr offline), requirements.txt (what to install)
 #   data/clips/deepmimic/  the DeepMimic clips (`fbcpr motions import`, cached after the first time)
-# Then prints what the lease copies (tree + carry) and fails above MAX_MIB.
+# Then prints what the GPU run copies (tree + carry) and fails above MAX_MIB.
 # Env: DEVICE_PY (3.12), WHEELS (.whl), SHARED (../shared), MAX_MIB (60), CLIPS (data/clips/deepmimic), SYNTHETIC.
 set -euo pipefail
 cd "$(git rev-parse --show-toplevel)"
@@ -51,7 +51,7 @@ if [ -n "${SYNTHETIC:-}" ] && ! ls "$CLIPS"/synthetic_*.npz > /dev/null 2>&1; th
 fi
 echo "clips: $(ls "$CLIPS"/*.npz | wc -l) in $CLIPS"
 
-# What the lease copies: tracked files, untracked files git does not ignore, and the carried paths.
+# What the GPU run copies: tracked files, untracked files git does not ignore, and the carried paths.
 bytes() { du -cb "$@" 2>/dev/null | tail -n 1 | cut -f 1; }
 tree=$( { git ls-files -z; git ls-files -z --others --exclude-standard; } | xargs -0 du -cb 2>/dev/null \
         | awk '$2 == "total" { s += $1 } END { print s + 0 }')

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Run ON THE DEVICE, after the install of device_train.sh: data-parallel training with N torchrun processes on the
-# leased GPU(s), a short run in the foreground, to show the multi-process GPU path starts and keeps its replicas
+# cloud GPU(s), a short run in the foreground, to show the multi-process GPU path starts and keeps its replicas
 # identical (the trainer checks them bit for bit at start and at its final checkpoint).
 #   FBCPR_SETUP_ONLY=1 bash lab/gpu/device_train.sh fbcpr/configs/gpu.yaml runs/x   # install only
 #   bash lab/gpu/device_ranks.sh fbcpr/configs/gpu.yaml runs/ranks [N]

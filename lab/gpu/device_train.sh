@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Run ON THE DEVICE from the repository root (first call of a lease): install the carried wheels and fbcpr offline
+# Run ON THE DEVICE from the repository root (first call of a GPU run): install the carried wheels and fbcpr offline
 # beside the image's packages (torch with CUDA, numpy, ...), show the GPU, start training detached (setsid +
 # nohup, log in RUN_DIR.log, pid in RUN_DIR.pid) and return once it is updating, or has died.
 #   bash lab/gpu/device_train.sh CONFIG RUN_DIR
@@ -95,7 +95,7 @@ fi
 if [ -n "${FBCPR_INIT_FROM:-}" ]; then
   args+=(--init-from "$FBCPR_INIT_FROM")
 fi
-detach=(setsid nohup)  # its own session: the trainer outlives this call
+detach=(setsid nohup)  # detached from this shell: the trainer outlives this call
 command -v setsid > /dev/null || detach=(nohup)
 printf '%s\n' "${RUNS[@]}" > "$RUN.runs"  # for device_wait.sh
 for i in "${!RUNS[@]}"; do

@@ -7,7 +7,7 @@
 #   status.txt                           trainer state, GPU use, packing report and the log tail
 # Several seeds (device_train.sh with FBCPR_SEEDS, listed in RUN_DIR.runs): the same per run in $OUT/<run name>/,
 # the checkpoint in one part (16 MiB: the small networks and ~40k reward states), and one status.txt for all.
-# With `stop` as third argument (the lease's last call), it stops the trainers first (SIGTERM: a final checkpoint
+# With `stop` as third argument (the GPU run's last call), it stops the trainers first (SIGTERM: a final checkpoint
 # at the next safe point) and packs those. A SIGTERM to this script (the call's time limit) packs at once.
 #   bash lab/gpu/device_wait.sh RUN_DIR [SECONDS] [stop]
 set -uo pipefail

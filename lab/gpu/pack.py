@@ -1,4 +1,4 @@
-"""Bring a checkpoint back from a GPU lease, whose $OUT returns at most 8 files of 16 MiB, 64 MiB in all.
+"""Bring a checkpoint back from a GPU run, whose $OUT returns at most 8 files of 16 MiB, 64 MiB in all.
 
 A paper-S model is 73.5 MiB in float32, more than one call returns. So the newest checkpoint of a run travels as
 its network parameters in float16 (36.8 MiB; relative rounding <= 2^-11, the normaliser's statistics and any
@@ -66,7 +66,7 @@ def pack(run_dir: Path, out_dir: Path, parts: int) -> list[Path]:
         path = out_dir / f"{ckpt.name}{PART}{i}-of-{n}"
         tmp = out_dir / f".{path.name}.tmp"
         tmp.write_bytes(data[i * PART_BYTES:(i + 1) * PART_BYTES])
-        os.replace(tmp, path)  # a lease cut short leaves whole parts only; unpack checks that all n are there
+        os.replace(tmp, path)  # a GPU run cut short leaves whole parts only; unpack checks that all n are there
         written.append(path)
     n_buf = "no reward buffer" if buf is None else f"{keep} of {len(buf['next_obs'])} reward states"
     print(f"packed {ckpt} (float16 weights, {n_buf}): {len(data) / 2**20:.1f} MiB in {n} part(s) in {out_dir}")
