@@ -120,6 +120,8 @@ def test_anchor_free_names_clips_of_the_library_and_the_trainer_marks_each_windo
                   init_from=tmp_path / "base")
     library = run.bundle.library
     np.testing.assert_array_equal(run.agent.free.numpy(), [n.startswith("circle-") for n in library.names])
+    notice = (tmp_path / "held" / "warnings.txt").read_text()
+    assert "anchor leaves 2 of 5 clips free: circle-ccw, circle-cw-small" in notice
     run.run(max_env_steps=100)
     batch, windows = run.sample_batch()
     clip = batch["window_clip"].numpy()

@@ -12,6 +12,7 @@
                                                # latents (NEAR's annealing)
                agent.window_clips: bool        # True: each batch carries batch["window_clip"], the library index
                                                # of each expert window's clip (FB-CPR's `agent.anchor_free`)
+               agent.notices: list[str]        # lines shown once when training starts
 
 `ImitationReward` is a reward learned from demonstrations that plugs into any RL agent: `fit` on expert
 transitions (and, for adversarial rewards, the agent's own), then a batched `reward(obs, next_obs[, z])`. It is

@@ -165,6 +165,8 @@ class Trainer:
 
         self.env_steps = self.updates = self.episodes = 0
         self._announce_speed_switches()
+        for line in getattr(self.agent, "notices", ()):
+            self._notice(line)
         self.next_priority = tc.priority_every or math.inf
         self.next_eval = 0 if tc.eval_at_start and tc.eval_every else (tc.eval_every or math.inf)
         self.next_ckpt = tc.checkpoint_every or math.inf

@@ -78,6 +78,7 @@ class FBCPRAgent:
             raise ConfigError("agent.anchor_free: the agent needs the motion library's clips (free) to leave them free")
         self.free = None if free is None else torch.as_tensor(free, dtype=torch.bool, device=self.device)
         self.window_clips = self.free is not None  # the trainer then marks each window's clip ("window_clip")
+        self.notices: list[str] = []  # lines the trainer shows once at the start
         # the NEAR regulariser, which replaces the discriminator's training
         self.energy: ConditionalEnergy | None = None
         if agent_cfg.regulariser == "near":
@@ -106,9 +107,14 @@ class FBCPRAgent:
     def from_config(cls, cfg: Config, bundle: Any, device: torch.device, seed: int) -> FBCPRAgent:
         agent_cfg = cfg.agent
         assert isinstance(agent_cfg, AgentConfig)  # what a config of algorithm fb_cpr reads its agent section as
-        return cls(cfg.model, agent_cfg, device, seed,
-                   task_reward=bundle.task_reward if agent_cfg.anchor_rewards else None,
-                   free=free_clips(bundle.library, agent_cfg.anchor_free) if agent_cfg.anchor_free else None)
+        free = free_clips(bundle.library, agent_cfg.anchor_free) if agent_cfg.anchor_free else None
+        agent = cls(cfg.model, agent_cfg, device, seed,
+                    task_reward=bundle.task_reward if agent_cfg.anchor_rewards else None, free=free)
+        if free is not None:
+            names = [n for n, f in zip(bundle.library.names, free) if f]
+            agent.notices.append(f"agent.anchor_free: the anchor leaves {len(names)} of {len(free)} clips free: "
+                                 f"{', '.join(names[:8])}{' ...' if len(names) > 8 else ''}")
+        return agent
 
     @property
     def z_dim(self) -> int:
