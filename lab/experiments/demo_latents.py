@@ -12,22 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from fbcpr import BFM
-from humanoid_env.env import HumanoidEnv
+from fbcpr.eval.upright import pelvis_heights
 from humanoid_env.inits import DefaultInit
 from humanoid_env.model import CONTROL_HZ
 from motions.library import MotionLibrary
-
-
-def pelvis_heights(bfm: BFM, z: np.ndarray, steps: int) -> np.ndarray:
-    """(steps,) pelvis heights of the model under z from the default standing start."""
-    q, v = DefaultInit(0.0, 0.0).sample(np.random.default_rng(0), 1)
-    env = HumanoidEnv(max_episode_steps=steps + 1, action_mapping=bfm.action_mapping)
-    obs, _ = env.reset(options={"qpos": q[0], "qvel": v[0]})
-    heights = []
-    for _ in range(steps):
-        obs, _, _, _, info = env.step(bfm.act(obs, z))
-        heights.append(info["qpos"][2])
-    return np.array(heights)
 
 
 def main() -> None:
@@ -43,7 +31,8 @@ def main() -> None:
         zs = {f"imitate_{clip.name}": bfm.prompt.imitate(clip), f"track_end_{clip.name}": bfm.prompt.track(clip)[-1]}
         for name, z in zs.items():
             np.save(args.out / f"{name}.npy", np.asarray(z, np.float32))
-            h = pelvis_heights(bfm, z, args.steps)[CONTROL_HZ - 1::CONTROL_HZ]
+            h = pelvis_heights(bfm, DefaultInit(0.0, 0.0), 1, args.steps, seed=0, prompt=z,
+                               num_threads=1)[CONTROL_HZ - 1::CONTROL_HZ, 0]
             print(f"{name}: pelvis each second {np.round(h, 2).tolist()}", flush=True)
 
 
