@@ -23,11 +23,11 @@ from fbcpr.cli.common import cli_errors, console
 DEFAULT_CONFIG = "quickstart.yaml"
 STAND_PROMPT = "move-ego-0-0"
 #: One line on what the shipped model is, for the demo's verdict (its model card has the details).
-PRETRAINED_NOTE = "FB-CPR with small networks, trained on the DeepMimic clips and the package's synthetic clips"
+PRETRAINED_NOTE = ("FB-CPR with small networks, trained on the DeepMimic clips, the package's synthetic clips and two "
+                   "planned crouches")
 #: What the shipped model cannot do yet, as docs/results.md measures it; the demo says so instead of showing it.
-CANNOT_YET = ("It cannot yet get up from a fall, jump (jump-2 returns about 22 of 300), rotate in place or sit "
-              "upright on the ground, and it reaches goal poses and tracks clips only loosely: docs/results.md has "
-              "the numbers.")
+CANNOT_YET = ("It cannot yet get up from a fall or jump (under jump-2 its feet never leave the ground), and it "
+              "reaches goal poses and tracks clips only loosely: docs/results.md has the numbers.")
 
 
 def find_config(path: Path | None) -> Path:
