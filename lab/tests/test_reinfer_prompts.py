@@ -22,7 +22,8 @@ def test_the_named_prompts_are_regressed_again_and_the_others_kept(tmp_path):
         warnings.simplefilter("error")  # written with today's formula revisions: nothing stale
         after = BFM.load(out).reward_prompts
     # the re-inferred task's refinement is gone
-    assert sorted(after.refined) == ["move-ego-0-4", "rotate-z-5-0.8", "sitonground"]
+    assert "raisearms-h-h" in before.refined
+    assert sorted(after.refined) == sorted(set(before.refined) - {"raisearms-h-h"})
     assert after.revisions == before.revisions and after.states == before.states
     for task in ("raisearms-h-h", "jump-2"):  # the same states, so the regression gives the stored zero-shot z back
         z, z0 = after.z[task], before.zero_shot(task)
