@@ -2,7 +2,8 @@
 tracking window's z (for `z_search.py --judge`) and prints the pelvis height each second from the default standing
 start under each (lab/log.md 56: did training on the planner's crouches teach the crouch?). `--frames` adds the
 tracking z's of chosen frames: a jump's last window is its landing, the z that could start one lies before takeoff
-(lab/log.md 59).
+(lab/log.md 59). `--track` also tracks each clip step by step from its first state (`fbcpr track`) and reads the
+jump rule off the rollout: is the skill there when the prompt changes every step?
 
     python lab/experiments/demo_latents.py runs/s56/cand-crouch data/demos/crouch --out runs/s56/demoz_cand
 """
@@ -14,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from fbcpr import BFM
+from fbcpr.cli.prompt_cmd import rollout
+from fbcpr.eval.behaviours import FAMILIES, Trace
 from fbcpr.eval.upright import pelvis_heights
 from humanoid_env.inits import DefaultInit
 from humanoid_env.model import CONTROL_HZ
@@ -26,8 +29,11 @@ def main() -> None:
     ap.add_argument("demos", type=Path, help="a folder of clips or demonstrations")
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--frames", type=int, nargs="*", default=[], help="also the tracking z's of these frames")
+    ap.add_argument("--track", action="store_true", help="also track each clip, judged by the jump rule")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
+    if args.steps <= CONTROL_HZ:
+        ap.error(f"--steps: give more than {CONTROL_HZ} (one second): the highest pelvis is read after it")
     bfm = BFM.load(args.checkpoint)
     args.out.mkdir(parents=True, exist_ok=True)
     for clip in MotionLibrary.load(args.demos).clips:
@@ -41,6 +47,12 @@ def main() -> None:
             h = pelvis_heights(bfm, DefaultInit(0.0, 0.0), 1, args.steps, seed=0, prompt=z, num_threads=1)[:, 0]
             print(f"{name}: pelvis each second {np.round(h[CONTROL_HZ - 1::CONTROL_HZ], 2).tolist()}, "
                   f"highest {h[CONTROL_HZ:].max():.2f} after the first second", flush=True)
+        if args.track:
+            jump = next(f for f in FAMILIES if f.name == "jump")
+            ep = rollout(bfm, bfm.track_z(clip), start=(clip.qpos[0], clip.qvel[0]))
+            ok, m = jump.judge(Trace(np.stack(ep.obs)[:, None]))
+            print(f"tracked {clip.name}: apex {m['apex_gain'][0]:+.2f} m over standing, "
+                  f"{m['flight_steps'][0]:.0f} flight steps, jump rule {'passed' if ok[0] else 'failed'}", flush=True)
 
 
 if __name__ == "__main__":

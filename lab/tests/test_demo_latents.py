@@ -37,3 +37,21 @@ def test_a_frame_past_the_clip_is_refused(tmp_path: Path) -> None:
     run = subprocess.run([sys.executable, str(SCRIPT), "pretrained", str(tmp_path / "clips"), "--frames", "11",
                           "--out", str(tmp_path / "z")], capture_output=True, text=True, timeout=300)
     assert run.returncode != 0 and "frames 0-10" in run.stderr
+
+
+def test_track_reads_the_jump_rule_off_a_step_by_step_rollout(tmp_path: Path) -> None:
+    (tmp_path / "clips").mkdir()
+    save_clip(from_qpos(np.repeat(default_qpos()[None], 45, 0), "still"), tmp_path / "clips" / "still.npz")
+    out = subprocess.run([sys.executable, str(SCRIPT), "pretrained", str(tmp_path / "clips"), "--steps", "40",
+                          "--track", "--out", str(tmp_path / "z")],
+                         capture_output=True, text=True, timeout=300, check=True).stdout
+    line = re.search(r"^tracked still: apex ([+-][\d.]+) m over standing, (\d+) flight steps, jump rule (\w+)$",
+                     out, re.M)
+    assert line, out
+    assert abs(float(line.group(1))) < 0.1 and line.group(3) == "failed"  # a body holding still does not jump
+
+
+def test_a_run_shorter_than_a_second_is_refused(tmp_path: Path) -> None:
+    run = subprocess.run([sys.executable, str(SCRIPT), "pretrained", str(tmp_path), "--steps", "30",
+                          "--out", str(tmp_path / "z")], capture_output=True, text=True, timeout=300)
+    assert run.returncode != 0 and "--steps" in run.stderr
