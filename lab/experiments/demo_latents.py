@@ -13,10 +13,10 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from skill_planner import judge
 
 from fbcpr import BFM
 from fbcpr.cli.prompt_cmd import rollout
-from fbcpr.eval.behaviours import FAMILIES, Trace
 from fbcpr.eval.upright import pelvis_heights
 from humanoid_env.inits import DefaultInit
 from humanoid_env.model import CONTROL_HZ
@@ -48,11 +48,10 @@ def main() -> None:
             print(f"{name}: pelvis each second {np.round(h[CONTROL_HZ - 1::CONTROL_HZ], 2).tolist()}, "
                   f"highest {h[CONTROL_HZ:].max():.2f} after the first second", flush=True)
         if args.track:
-            jump = next(f for f in FAMILIES if f.name == "jump")
-            ep = rollout(bfm, bfm.track_z(clip), start=(clip.qpos[0], clip.qvel[0]))
-            ok, m = jump.judge(Trace(np.stack(ep.obs)[:, None]))
-            print(f"tracked {clip.name}: apex {m['apex_gain'][0]:+.2f} m over standing, "
-                  f"{m['flight_steps'][0]:.0f} flight steps, jump rule {'passed' if ok[0] else 'failed'}", flush=True)
+            ep = rollout(bfm, track, start=(clip.qpos[0], clip.qvel[0]))
+            ok, m = judge("jump", np.stack(ep.obs))
+            print(f"tracked {clip.name}: apex {m['apex_gain']:+.2f} m over standing, "
+                  f"{m['flight_steps']:.0f} flight steps, jump rule {'passed' if ok else 'failed'}", flush=True)
 
 
 if __name__ == "__main__":
