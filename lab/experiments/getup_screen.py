@@ -33,7 +33,7 @@ def screen(agent: object, z: np.ndarray | str, episodes: int, steps: int, seed: 
     from quiet standing starts of the same seed; `z`: the stand z, or the prompt's name for a z-free floor."""
     fall = pelvis_heights(agent, FallInit(), episodes, steps, seed, z)
     stand = pelvis_heights(agent, DefaultInit(), episodes, steps, seed, z)
-    return {"got_up": float(got_up(fall).mean()), "last_pelvis": float(fall[-30:].mean()),
+    return {"got_up": float(got_up(fall).mean()), "last_pelvis": float(fall[-CONTROL_HZ:].mean()),
             "stand_s": float(np.median(seconds_upright(stand)))}
 
 
@@ -53,7 +53,7 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=8)
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--threads", type=int, default=2, help="torch and MuJoCo threads")
+    ap.add_argument("--threads", type=int, default=2, help="torch threads")
     ap.add_argument("--demos", type=Path, help="also each of these demonstrations under its own whole-clip z")
     args = ap.parse_args()
     if args.episodes < 1 or args.steps <= CONTROL_HZ:
