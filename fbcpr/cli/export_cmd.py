@@ -2,7 +2,8 @@
 optionally with its weights interpolated towards the model it was trained on from (`--interpolate BASE`), and with
 another model's reward states (`--reward-states-from MODEL`), with the named tasks' reward prompts inferred from
 all of those states (`--store-prompts`), and some of those refined by rollouts (`--refine-prompts TASKS`, each
-search from the zero-shot z or from a saved one, `--refine-from TASK=Z.npy`)."""
+search from the zero-shot z or from a saved one, `--refine-from TASK=Z.npy`); or, with `--onnx`, the actor and B as
+ONNX graphs with a JSON of sizes, action mapping and stored prompts (`fbcpr.inference.onnx_export`)."""
 from __future__ import annotations
 
 import warnings
@@ -20,6 +21,10 @@ def export_command(
     checkpoint: str = typer.Argument(..., help="Checkpoint dir, run dir, 'pretrained' or a Hugging Face repo id."),
     out: Path = typer.Argument(..., help="Folder to write the inference checkpoint into (replaced atomically); "
                                          "never CHECKPOINT itself, a folder inside or around it, or a file."),
+    onnx: bool = typer.Option(False, "--onnx", help="Write the actor (obs, z -> action, the observation normaliser "
+                              "inside) and B (obs -> embedding) as ONNX files with fbcpr-onnx.json (sizes, action "
+                              "mapping, stored prompts' z's) instead of a checkpoint, for apps without torch; needs "
+                              'pip install "fbcpr[onnx]".'),
     reward_samples: int = typer.Option(20_000, "--reward-samples", min=1,
                                        help="States kept for reward prompts (a seeded subsample of the buffer)."),
     half: bool = typer.Option(True, "--half/--full", help="Store the reward states as float16 (half the size)."),
@@ -62,6 +67,7 @@ def export_command(
 ) -> None:
     """Write what inference needs and nothing else: no trainer state, no replay buffer."""
     from fbcpr.core.errors import InputError
+    from fbcpr.core.extras import require
     from fbcpr.core.paths import check_output_folder
     from fbcpr.inference.bfm import BFM
     from fbcpr.inference.interpolation import interpolate, with_reward_states
@@ -69,6 +75,13 @@ def export_command(
     from fbcpr.inference.reward_prompts import infer_reward_prompts, refine_reward_prompts
     from humanoid_env.tasks.rewards import TASKS
 
+    if onnx:
+        stored_only = [f"--{n.replace('_', '-')}" for n in ("reward_samples", "half", "states_only") if given(ctx, n)]
+        if stored_only:
+            raise InputError(f"{', '.join(stored_only)}: set how a checkpoint stores its reward states, and --onnx "
+                             "writes no checkpoint")
+        require("onnxruntime", "onnx", "fbcpr export --onnx")
+        require("onnxscript", "onnx", "fbcpr export --onnx")
     if given(ctx, "alpha") and interpolate_from is None:
         raise InputError("--alpha: only means something with --interpolate BASE")
     refining = comma_names(refine_prompts)
@@ -115,7 +128,13 @@ def export_command(
         for name in refining:
             rec = bfm.reward_prompts.refined[name]
             console.print(f"refined {name}: mean reward on its starts {rec['score0']:.3f} -> {rec['score']:.3f}")
-    path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
+    if onnx:
+        from fbcpr.inference.onnx_export import export_onnx
+
+        with console.status("exporting the actor and B to ONNX"):
+            path = export_onnx(bfm, out)
+    else:
+        path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
     sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
     for name, size in sizes.items():
         console.print(f"  {name:28s} {size / 2**20:8.2f} MiB")

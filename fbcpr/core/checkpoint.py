@@ -334,9 +334,10 @@ def _backup_name(path: Path) -> Path:
     return path.parent / f".{path.name}.previous"
 
 
-def check_replaceable(path: Path) -> None:
+def check_replaceable(path: Path, marker: str = MANIFEST_FILE) -> None:
     """CheckpointError unless a checkpoint may be written at `path`: nothing is there, an empty folder, or a
-    checkpoint (a folder with its manifest). A file, or a folder of anything else, is never replaced by one."""
+    checkpoint (a folder with its manifest, or the `marker` file of another kind of export). A file, or a folder of
+    anything else, is never replaced by one."""
     if not os.path.lexists(path):
         return
     if not path.is_dir():
@@ -346,25 +347,25 @@ def check_replaceable(path: Path) -> None:
         holds = next(os.scandir(path), None) is not None
     except OSError as e:
         raise CheckpointError(f"{path}: cannot read the folder to be replaced ({e.strerror})") from None
-    if holds and not (path / MANIFEST_FILE).is_file():
-        raise CheckpointError(f"{path}: a folder that holds files but no checkpoint (no {MANIFEST_FILE}); a checkpoint "
+    if holds and not (path / marker).is_file():
+        raise CheckpointError(f"{path}: a folder that holds files but no checkpoint (no {marker}); a checkpoint "
                               "would replace all of it (choose another path)")
 
 
-def staging_dir(path: Path) -> Path:
+def staging_dir(path: Path, marker: str = MANIFEST_FILE) -> Path:
     """A fresh hidden folder beside `path` to write a checkpoint into before `swap_into_place` (refused early, by
     `check_replaceable`, where no checkpoint may go); `remove_stale_temporaries` finds those a kill left behind."""
-    check_replaceable(path)
+    check_replaceable(path, marker)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
     return tmp
 
 
-def swap_into_place(tmp: Path, path: Path) -> None:
+def swap_into_place(tmp: Path, path: Path, marker: str = MANIFEST_FILE) -> None:
     """tmp -> path; an existing checkpoint is kept as a backup until the new one is in place (`check_replaceable`:
-    only a checkpoint or an empty folder is replaced)."""
-    check_replaceable(path)
+    only a checkpoint, one with `marker`, or an empty folder is replaced)."""
+    check_replaceable(path, marker)
     backup = _backup_name(path)
     if path.exists():
         if backup.exists():
