@@ -12,6 +12,7 @@ from fbcpr.cli import (
     imitate_cmd,
     motions_cmd,
     npmp_cmd,
+    play_cmd,
     prompt_cmd,
     tasks_cmd,
     train_cmd,
@@ -28,6 +29,7 @@ imitate_cmd.register(app)
 prompt_cmd.register(app)
 eval_cmd.register(app)
 demo_cmd.register(app)
+play_cmd.register(app)
 tasks_cmd.register(app)
 motions_cmd.register(app)
 export_cmd.register(app)
