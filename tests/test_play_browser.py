@@ -119,7 +119,11 @@ def test_play_page_prompts_the_running_body(server, tmp_path):
 
         shot = Path(os.environ.get("FBCPR_PLAY_SCREENSHOT", tmp_path / "play.png"))
         page.get_by_role("button", name="Reset standing").click()
-        page.wait_for_timeout(1000)
+        para(page, "z from:").scroll_into_view_if_needed()
+        close = page.locator(".mantine-Notification-closeButton")  # the note that WebGL runs in software
+        if close.count():
+            close.first.click()
+        page.wait_for_timeout(1500)
         page.screenshot(path=shot)
         browser.close()
     assert Image.open(shot).size == (1100, 700)

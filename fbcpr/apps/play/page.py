@@ -7,6 +7,7 @@ the page and leaves the running prompt as it was.
 """
 from __future__ import annotations
 
+import re
 import threading
 import time
 from collections import deque
@@ -28,6 +29,11 @@ READOUT_EVERY = 3
 DEFAULT_TIMELINE = "move-ego-0-2:4,move-ego-0-0:3,move-ego-0-2:4"
 #: The camera's place relative to the pelvis when the page opens (metres, z up).
 CAMERA_OFFSET = np.array([2.0, -2.0, 0.4])
+
+
+def escape_markdown(text: str) -> str:
+    """`text` shown as it is in a markdown widget (a reward name's '*' would otherwise start italics)."""
+    return re.sub(r"([\\`*_{}\[\]<>()#+!|~-])", r"\\\1", text)
 
 
 class Playground:
@@ -113,7 +119,7 @@ class Playground:
             source = build()
         except (FBCPRError, KeyError) as err:
             text = err.args[0] if isinstance(err, KeyError) and err.args else str(err)
-            self.message.content = f"**Not changed:** {text}. The body keeps its prompt."
+            self.message.content = f"**Not changed:** {escape_markdown(text)}. The body keeps its prompt."
             return
         self.session.use(source)
         self.rewards.clear()
@@ -140,12 +146,14 @@ class Playground:
         self.body.update(data)
         pelvis = np.array(data.qpos[:3])
         if self.follow:
+            target = np.array([pelvis[0], pelvis[1], 0.9])
             for client in self.server.get_clients().values():
-                offset = np.asarray(client.camera.position) - np.asarray(client.camera.look_at)
-                target = np.array([pelvis[0], pelvis[1], 0.9])
-                with client.atomic():
-                    client.camera.look_at = target
-                    client.camera.position = target + offset
+                camera = client.camera
+                if camera.update_timestamp == 0.0:  # the page has not reported its camera yet
+                    continue
+                shift = target - np.asarray(camera.look_at)
+                if np.abs(shift).max() > 1e-3:  # moving the camera moves its look-at point with it: the view holds
+                    camera.position = np.asarray(camera.position) + shift
         if refresh:
             self.status.content = self._status_text()
             self.readout.content = (f"t = {self.session.steps / CONTROL_HZ:.1f} s · pelvis (x, y, z) = "
@@ -165,7 +173,7 @@ class Playground:
             if realtime:
                 due += 1.0 / (CONTROL_HZ * self.speed)
                 now = time.monotonic()
-                if due < now - 0.25:  # far behind (a slow prompt, a suspended laptop): do not race to catch up
+                if due < now - 0.5:  # far behind (a slow prompt, a suspended laptop): do not race to catch up
                     due = now
                 self.stopped.wait(max(0.0, due - now))
         return steps / max(time.monotonic() - start, 1e-9)

@@ -69,9 +69,9 @@ def single(kind: str, label: str, detail: str, z: np.ndarray, score: Score) -> S
     return Source(kind, label, detail, z, np.zeros(len(z), np.int64), (0,), (label,), (score,))
 
 
-def proximity(goal: np.ndarray) -> float:
+def proximity(obs: np.ndarray, goal: np.ndarray) -> float:
     """exp(-d_smpl / 2): 1 at the pose, the goal metric's distance scale (`fbcpr.inference.prompt.goal_reward`)."""
-    return float(np.exp(-d_smpl(*goal) / GOAL_REWARD_SCALE))
+    return float(np.exp(-d_smpl(obs, goal) / GOAL_REWARD_SCALE))
 
 
 class Prompts:
@@ -99,14 +99,14 @@ class Prompts:
     def goal(self, name: str) -> Source:
         goal = goal_observation(name, self.bfm.obs_dim)[0]
         z = self.bfm.prompt.goal(name)
-        return single("goal", name, "B of the pose", z, lambda _t, obs, *_: proximity((obs, goal)))
+        return single("goal", name, "B of the pose", z, lambda _t, obs, *_: proximity(obs, goal))
 
     def clip(self, spec: str | Path, label: str | None = None) -> Source:
         clip = load_motion(spec)
         z = self.bfm.prompt.track(clip)
         ref = clip.obs
         return single("clip", label or clip.name, f"tracked, {len(clip.obs)} frames",
-                      z, lambda t, obs, *_: proximity((obs, ref[min(t + 1, len(ref) - 1)])))
+                      z, lambda t, obs, *_: proximity(obs, ref[min(t + 1, len(ref) - 1)]))
 
     def timeline(self, text: str) -> Source:
         tl = Timeline.from_string(self.bfm.prompt, text)
