@@ -119,6 +119,8 @@ def test_play_page_prompts_the_running_body(server, tmp_path):
 
         shot = Path(os.environ.get("FBCPR_PLAY_SCREENSHOT", tmp_path / "play.png"))
         page.get_by_role("button", name="Reset standing").click()
+        page.get_by_role("button", name="Prompt reward").click()  # a good prompt clears the message
+        expect(para(page, "Not changed:")).to_have_count(0, timeout=10_000)
         para(page, "z from:").scroll_into_view_if_needed()
         close = page.locator(".mantine-Notification-closeButton")  # the note that WebGL runs in software
         if close.count():

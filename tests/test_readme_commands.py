@@ -19,6 +19,7 @@ BLOCK = re.compile(r"```bash\n(.*?)```", re.S)
 SKIP = {
     "pip install": "installs packages (network); the tests run in the installed environment",
     "python -m pytest": "the test suite itself",
+    "fbcpr play": "serves its page until stopped (tests/test_play_browser.py runs it in a browser)",
     "fbcpr motions import path/to/": "the user's own motion files, which a fresh clone does not have (the import "
                                      "itself is tested in tests/test_motions_cli.py)",
 }
@@ -30,6 +31,7 @@ SHORT = {
     "eval --suite behaviours": ["--episodes", "1", "--steps", "60", "--tasks", "stand,get_up"],
     "train": ["--steps", "1", "--no-progress"],
     "export": ["--reward-samples", "200"],
+    "export runs/cpu runs/cpu-onnx --onnx": [],  # no reward states in an ONNX export: nothing to shorten
     # the shipped NEAR config pretrains its energy network for 2,000 steps first (half a minute here): a tiny one
     "imitate": ["--steps", "1", "--no-progress", "--config", "tiny-near.yaml"],
     "npmp distill": ["--steps", "2", "--rollouts", "1", "--max-steps", "10", "--preset", "tiny"],
