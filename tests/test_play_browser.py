@@ -58,9 +58,8 @@ def para(page: Page, text: str) -> Locator:
 
 
 def field(page: Page, label: str) -> Locator:
-    """The text input that a viser text widget labels `label` (the innermost block holding both)."""
-    block = page.locator("div").filter(has=page.get_by_text(label, exact=True)).filter(has=page.locator("input"))
-    return block.last.locator("input")
+    """The text input of the viser text widget labelled `label`: the first input after the label."""
+    return page.locator(f"xpath=//*[normalize-space(text())='{label}']/following::input[1]")
 
 
 def readout(page: Page) -> tuple[tuple[float, ...], str]:

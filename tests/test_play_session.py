@@ -128,3 +128,32 @@ def test_play_without_its_extra_names_it(monkeypatch):
 def test_play_rejects_a_missing_clip_file(tmp_path):
     result = CliRunner().invoke(app, ["play", "--clip", str(tmp_path / "none.npz")])
     assert result.exit_code == 1 and "none.npz: no such clip file" in result.output
+
+
+def test_page_pauses_steps_and_keeps_the_prompt_on_failure(prompts):
+    from fbcpr.apps.play.page import Playground
+
+    session = Session(prompts.bfm, prompts.reward("move-ego-0-0"))
+    page = Playground(session, prompts, ["move-ego-0-0", "move-ego-0-2"], ["t_pose"], {}, port=free_port())
+    try:
+        assert page.url.startswith("http://127.0.0.1:")
+        assert page.tick() and session.steps == 1
+        page.paused = True
+        assert not page.tick() and session.steps == 1  # paused: drawn, not stepped
+        page.step_once = True
+        assert page.tick() and session.steps == 2 and not page.step_once  # one step on request
+        source = session.source
+        page._prompt(lambda: prompts.reward("no-such-task"))
+        assert session.source is source and "no\\-such\\-task" in page.message.content
+        page._prompt(lambda: prompts.reward("move-ego-0-2"))
+        assert session.source.label == "move-ego-0-2" and page.message.content == ""
+    finally:
+        page.stop()
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
