@@ -13,9 +13,11 @@ The browser runs on the same cores, so on a small machine it competes with the l
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import time
 
+import numpy as np
 import torch
 
 from fbcpr.apps.play.page import Playground
@@ -61,15 +63,21 @@ def main() -> None:
         tab.locator("p").filter(has_text="z from:").wait_for(timeout=60_000)
         page.run(seconds=1.0)  # warm up: the page has its scene and starts drawing frames
         rows = [("bare env + policy", bare_rate(bfm, args.seconds)),
-                ("play loop, flat out", page.run(seconds=args.seconds, realtime=False)),
-                ("play loop, real time", page.run(seconds=args.seconds, realtime=True))]
+                ("play loop, flat out", page.run(seconds=args.seconds, realtime=False))]
+        ticks: list[float] = []
+        tick = page.tick
+        page.tick = lambda: ticks.append(time.monotonic()) or tick()  # type: ignore[method-assign]
+        rows.append(("play loop, real time", page.run(seconds=args.seconds, realtime=True)))
+        gaps = np.diff(ticks)
         connected = len(page.server.get_clients())
         browser.close()
     page.stop()
     print(f"{args.seconds:g} s each, torch threads {args.threads}, {connected} page(s) connected (headless Chromium, "
-          f"software WebGL)")
+          f"software WebGL), {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end")
     for name, rate in rows:
         print(f"  {name:22s} {rate:8.1f} steps/s   {rate / rows[0][1]:5.2f} x bare")
+    print(f"real time: steps {1000 * np.median(gaps):.1f} ms apart (median), longest gap {1000 * gaps.max():.0f} ms, "
+          f"{int((gaps > 0.1).sum())} gaps over 100 ms")
 
 
 if __name__ == "__main__":

@@ -173,7 +173,7 @@ class Playground:
             if realtime:
                 due += 1.0 / (CONTROL_HZ * self.speed)
                 now = time.monotonic()
-                if due < now - 0.5:  # far behind (a slow prompt, a suspended laptop): do not race to catch up
+                if due < now - 1.0:  # far behind (a suspended laptop): do not race to catch up
                     due = now
                 self.stopped.wait(max(0.0, due - now))
         return steps / max(time.monotonic() - start, 1e-9)
