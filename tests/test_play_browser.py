@@ -36,17 +36,17 @@ def server(tmp_path_factory):
     (data / "clips").mkdir()
     (data / "clips" / "broken.npz").write_bytes(b"not a clip archive")
     env = {**os.environ, "FBCPR_DATA": str(data), "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "fbcpr", "play", "--port", str(free_port())], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    url, lines, deadline = None, [], time.monotonic() + 60
-    while url is None and time.monotonic() < deadline and proc.poll() is None:
-        line = proc.stdout.readline()
-        lines.append(line)
-        found = re.search(r"open (http://127\.0\.0\.1:\d+)", line)
-        url = found.group(1) if found else None
+    log = data / "play.log"  # a file, not a pipe: a server writing to a pipe nobody reads would block
+    with log.open("w") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "fbcpr", "play", "--port", str(free_port())], cwd=ROOT,
+                                env=env, stdout=out, stderr=subprocess.STDOUT)
+    found, deadline = None, time.monotonic() + 60
+    while found is None and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+        found = re.search(r"open (http://127\.0\.0\.1:\d+)", log.read_text())
     try:
-        assert url is not None, "fbcpr play printed no address:\n" + "".join(lines)
-        yield url
+        assert found is not None, "fbcpr play printed no address:\n" + log.read_text()
+        yield found.group(1)
     finally:
         proc.terminate()
         proc.wait(timeout=20)
@@ -79,7 +79,7 @@ def test_play_page_prompts_the_running_body(server, tmp_path):
     assert chromium, "the browser test needs Debian's chromium (.ci/run installs it: apt-get install chromium)"
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
-        page = browser.new_page(viewport={"width": 1100, "height": 700})
+        page = browser.new_page(viewport={"width": 960, "height": 600})
         page.goto(server)
         expect(para(page, "z from:")).to_contain_text("move-ego-0-0", timeout=30_000)
 
@@ -127,4 +127,4 @@ def test_play_page_prompts_the_running_body(server, tmp_path):
         page.wait_for_timeout(1500)
         page.screenshot(path=shot)
         browser.close()
-    assert Image.open(shot).size == (1100, 700)
+    assert Image.open(shot).size == (960, 600)
