@@ -157,3 +157,21 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def test_play_starts_a_model_without_reward_states_on_a_goal(tmp_path, monkeypatch):
+    from fbcpr.apps.play.page import Playground
+    from fbcpr.core.checkpoint import save_checkpoint
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
+
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69}})
+    ckpt = save_checkpoint(tmp_path / "no-states", FBCPRModel(cfg.model), cfg)
+
+    def stop_at_once(self, *args, **kwargs):
+        raise KeyboardInterrupt  # as Ctrl-C would, once the page is served
+
+    monkeypatch.setattr(Playground, "run", stop_at_once)
+    result = CliRunner().invoke(app, ["play", "--model", str(ckpt), "--port", str(free_port())])
+    assert result.exit_code == 0, result.output
+    assert "http://127.0.0.1:" in result.output and "starts under the goal t_pose" in result.output

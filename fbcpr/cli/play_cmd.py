@@ -8,8 +8,8 @@ import typer
 
 from fbcpr.cli.common import cli_errors, console
 
-#: The prompt the body starts under: standing still.
-FIRST_PROMPT = "move-ego-0-0"
+#: The prompt the body starts under: standing still (the T-pose goal for a model that has no reward states).
+FIRST_PROMPT, FIRST_GOAL = "move-ego-0-0", "t_pose"
 
 
 @cli_errors
@@ -29,7 +29,7 @@ def play_command(
     from fbcpr.apps.play.page import Playground
     from fbcpr.apps.play.session import Prompts, Session, check_clip_files, clip_choices
     from fbcpr.core.config import data_dir
-    from fbcpr.core.errors import InputError
+    from fbcpr.core.errors import InputError, PromptError
     from fbcpr.core.extras import require
     from fbcpr.inference.bfm import BFM
     from fbcpr.inference.prompt import builtin_clip_names
@@ -41,10 +41,15 @@ def play_command(
     if bfm.env_name != "humanoid":
         raise InputError(f"--model: {model} was trained on {bfm.env_name!r}; the playground shows the humanoid")
     prompts = Prompts(bfm)
-    session = Session(bfm, prompts.reward(FIRST_PROMPT), seed=seed)
+    try:
+        first = prompts.reward(FIRST_PROMPT)
+    except PromptError:  # a model without reward states still takes goal poses and clips
+        first = prompts.goal(FIRST_GOAL)
+    session = Session(bfm, first, seed=seed)
     clips = clip_choices(data_dir(), clip or [], builtin_clip_names())
     page = Playground(session, prompts, sorted(TASKS), goal_names(), clips, host=host, port=port)
-    console.print(f"fbcpr play: open [bold]{page.url}[/] (Ctrl-C stops)")
+    console.print(f"the body starts under the {first.kind} {first.label}")
+    console.print(f"fbcpr play: open [bold]{page.url}[/] (Ctrl-C stops)", soft_wrap=True)
     try:
         page.run()
     except KeyboardInterrupt:

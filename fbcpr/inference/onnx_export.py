@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import contextlib
+import copy
 import io
 import json
 import logging
@@ -66,7 +67,7 @@ def export_onnx(bfm: BFM, out: str | Path) -> Path:
     require("onnxscript", "onnx", "ONNX export")
     path = Path(out)
     tmp = staging_dir(path, META_FILE)
-    model = bfm.model.cpu().eval()
+    model = bfm.model if bfm.device.type == "cpu" else copy.deepcopy(bfm.model).cpu()  # the BFM stays where it is
     batch = torch.export.Dim("batch")
     obs, z = torch.zeros(2, bfm.obs_dim), torch.ones(2, bfm.z_dim)
     _export(ActorGraph(model), (obs, z), tmp / ACTOR_FILE, ["obs", "z"], ["action"],
