@@ -597,11 +597,13 @@ def table(results: dict[str, Any]) -> Any:
     for name, e in results["families"].items():
         floors = [e["scores"][a] for a in agents if a in FLOORS and a != judged]
         above = f"{e['scores'][judged] - max(floors):+.2f}" if floors else "-"
-        other = next(s for s in e["agents"][judged] if s != e["start"])
-        t.add_row(name, e["start"], *(f"{e['scores'][a]:.2f}" for a in agents), above,
-                  f"{e['agents'][judged][other]['pass']:.2f} {other}", "[green]yes[/]" if e["passed"] else "[red]no[/]")
+        other = e["agents"][judged][OTHER_START[e["start"]]]["pass"]
+        t.add_row(name, e["start"], *(f"{e['scores'][a]:.2f}" for a in agents), above, f"{other:.2f}",
+                  "[green]yes[/]" if e["passed"] else "[red]no[/]")
     s = results["summary"]
+    others = ", ".join(f"{o} beside {k}" for k, o in OTHER_START.items())
     t.caption = (f"{judged} passes {s['families_passed']} of {s['of']} families: a family needs 0.5 of its episodes "
                  f"(the goal poses 0.3 mean success, counting only poses reached more often than by every floor) "
-                 f"and {results['margin']:g} more than each floor from the same start")
+                 f"and {results['margin']:g} more than each floor from the same start. Other start: {judged} from "
+                 f"{others}")
     return t
