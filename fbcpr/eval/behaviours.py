@@ -30,7 +30,7 @@ STARTS = ("standing", "pushed", "fall")
 OTHER_START = {"standing": "fall", "pushed": "standing", "fall": "standing"}
 PASS_SHARE = 0.5
 #: how far the judged agent's score must exceed each floor's (zero action, random actions) from the family's own
-#: start: two episodes in eight, about one standard error of a share near 0.5 over 8 episodes, per agent
+#: start: two episodes in eight, the standard error of the difference of two shares near 0.5 over 8 episodes each
 MARGIN = 0.25
 #: envs one vector env steps at once
 CHUNK = 96
