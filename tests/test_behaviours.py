@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 from fbcpr.cli.app import app
 from fbcpr.core.errors import InputError
 from fbcpr.eval import behaviours as B
-from fbcpr.eval.agents import ZeroAgent
+from fbcpr.eval.agents import RandomAgent, ZeroAgent
 from humanoid_env.model import CONTROL_HZ, NV, load_model
 from humanoid_env.observation import observe
 from humanoid_env.tasks.goals import goal_qpos
@@ -115,12 +115,15 @@ def test_floor_runs_once_per_start_and_is_judged_for_every_family(tmp_path) -> N
                   out=tmp_path, show_progress=False)
     fam = res["families"]
     assert fam["stand"]["agents"]["zero"]["standing"]["pass"] == 1.0  # zero action holds a quiet standing start
+    assert set(fam["stand"]["agents"]["zero"]) == {"pushed", "standing"}  # the stand family's own start, and beside
     assert fam["get_up"]["agents"]["zero"]["fall"]["pass"] == 0.0  # and does not rise from a fall
-    assert fam["stand"]["passed"] and not fam["get_up"]["passed"]
+    assert set(fam["get_up"]["agents"]["zero"]) == {"fall", "standing"}
+    assert not fam["get_up"]["passed"]
     poses = fam["goal_poses"]["agents"]["zero"]["standing"]["poses"]
     assert len(poses) == 33 and poses["t_pose"]["final_distance"] < poses["lie_back"]["final_distance"]
-    assert res["summary"] == {"passed": ["stand"], "families_passed": 1, "of": 3}
-    assert json.loads((tmp_path / "behaviours.json").read_text())["summary"]["families_passed"] == 1
+    assert res["summary"]["of"] == 3
+    saved = json.loads((tmp_path / "behaviours.json").read_text())
+    assert saved["summary"] == res["summary"] and saved["margin"] == B.MARGIN
     assert "poses_reached" not in fam["goal_poses"]  # the zero floor is not compared with itself
     sheets = res["sheets"]
     if isinstance(sheets, list):
@@ -138,7 +141,7 @@ def test_cli_behaviours_suite(tmp_path) -> None:
     res = runner.invoke(app, ["eval", "zero", "--suite", "behaviours", "--tasks", "stand,jump", "--episodes", "1",
                               "--steps", "60", "--out", str(out)])
     assert res.exit_code == 0, res.output
-    assert "zero passes 1 of 2 families" in " ".join(res.output.split())
+    assert "zero passes 0 of 2 families" in " ".join(res.output.split())  # judged against random alone
     assert set(json.loads((out / "behaviours.json").read_text())["families"]) == {"stand", "jump"}
     bad = runner.invoke(app, ["eval", "zero", "--suite", "behaviours", "--fall-prob", "0.2"])
     assert bad.exit_code != 0 and "--fall-prob" in bad.output
@@ -165,18 +168,60 @@ def test_a_diverged_episode_fails_its_family(monkeypatch) -> None:
     res = B.check({"zero": ZeroAgent()}, ["stand"], episodes=2, steps=60, show_progress=False)
     standing = res["families"]["stand"]["agents"]["zero"]["standing"]
     assert standing["pass"] == 0.5 and standing["diverged"] == 1
-    assert res["families"]["stand"]["agents"]["zero"]["fall"]["diverged"] == 0
+    assert res["families"]["stand"]["agents"]["zero"]["pushed"]["diverged"] == 0
 
 
-def test_goal_poses_reached_are_compared_with_the_zero_floor() -> None:
+def test_goal_poses_reached_are_compared_with_the_floors() -> None:
     """A model that only stands still reaches the T-poses (the rest pose is one), but no better than zero action."""
-    res = B.check({"still": ZeroAgent(), "zero": ZeroAgent()}, ["goal_poses"], episodes=1, steps=60,
-                  show_progress=False)
+    res = B.check({"still": ZeroAgent(), "zero": ZeroAgent(), "random": RandomAgent(0)}, ["goal_poses"], episodes=1,
+                  steps=60, show_progress=False)
     goals = res["families"]["goal_poses"]
     assert "t_pose" in goals["poses_reached"] and "lie_back" not in goals["poses_reached"]
-    assert goals["reached_not_above_zero"] == goals["poses_reached"]
+    assert goals["reached_not_above_floors"] == goals["poses_reached"]
     still = goals["agents"]["still"]["standing"]
-    assert still["pass"] > 0 and goals["success_above_zero"] == 0.0 and not goals["passed"]  # all of it the floor's
+    assert still["pass"] > 0 and goals["success_above_floors"] == 0.0 and not goals["passed"]  # all the floor's
+    assert goals["scores"]["still"] == 0.0 and goals["scores"]["zero"] == still["pass"]
+
+
+@pytest.mark.parametrize("score, floors, need, passed", [
+    (1.0, [1.0, 0.0], 0.5, False),      # equal to the zero floor: the quiet stand of the old stand family
+    (0.625, [0.0, 0.625], 0.5, False),  # equal to the random floor: lying face up
+    (0.875, [0.0, 0.625], 0.5, True),   # two episodes in eight above the better floor
+    (0.75, [0.0, 0.625], 0.5, False),   # one episode above it is within the noise
+    (0.375, [0.0, 0.0], 0.5, False),    # far above both floors but short of the family's need
+    (0.3, [0.05, 0.0], 0.3, True),      # the goal family's need, a margin of 0.25 over the floor
+    (0.3, [0.06, 0.0], 0.3, False),
+    (0.5, [], 0.5, True),               # no floor beside it: the need alone
+])
+def test_a_family_passes_only_above_both_floors_by_the_margin(score, floors, need, passed) -> None:
+    assert B.MARGIN == 0.25
+    assert B.beats_floors(score, floors, need) is passed
+
+
+def test_an_agent_that_does_what_a_floor_does_passes_no_family(tmp_path) -> None:
+    """Zero action judged against itself and random actions: every score equals a floor's, so nothing passes, though
+    zero action meets the stand rule from quiet starts; the table shows the model, both floors and the margin."""
+    from rich.console import Console
+
+    res = B.check({"still": ZeroAgent(), "zero": ZeroAgent(), "random": RandomAgent(0)},
+                  ["stand", "lie_face_up", "get_up"], episodes=2, steps=60, seed=5, show_progress=False)
+    fam = res["families"]
+    assert fam["stand"]["agents"]["still"]["standing"]["pass"] == 1.0
+    assert all(e["scores"]["still"] == e["scores"]["zero"] and not e["passed"] for e in fam.values())
+    assert res["summary"]["families_passed"] == 0
+    console = Console(width=200, record=True)
+    console.print(B.table(res))
+    text = console.export_text()
+    header = next(line for line in text.splitlines() if "family" in line)
+    assert all(col in header for col in ("still", "zero", "random", "above floors", "other start", "passed"))
+    assert "pushed" in text and "+0.00" in text and "0.25 more than each floor" in " ".join(text.split())
+
+
+def test_the_pushed_start_topples_zero_action() -> None:
+    """The stand family's start is one the zero action cannot hold, so a model passes it by balancing."""
+    res = B.check({"zero": ZeroAgent()}, ["stand"], episodes=8, steps=300, seed=7, show_progress=False)
+    stand = res["families"]["stand"]["agents"]["zero"]
+    assert stand["standing"]["pass"] == 1.0 and stand["pushed"]["pass"] <= 0.25
 
 
 def test_refine_searches_each_family_prompt_from_its_own_kind_of_start() -> None:
@@ -188,14 +233,18 @@ def test_refine_searches_each_family_prompt_from_its_own_kind_of_start() -> None
     bfm = BFM.pretrained()
     fams = B.families(["stand", "get_up"])
     refinement = reward_refinement(1, steps=30, seed=0)
-    zs, key_of = B._prompts(bfm, fams, refinement, seed=0)
-    assert key_of == {"stand": "move-ego-0-0@standing", "get_up": "move-ego-0-0@fall"}
+    zs, starts, key_of = B._prompts(bfm, fams, refinement, seed=0)
+    assert key_of == {"stand": "move-ego-0-0@pushed", "get_up": "move-ego-0-0@fall"}
+    assert starts == {"move-ego-0-0@pushed": ["standing", "pushed"], "move-ego-0-0@fall": ["standing", "fall"]}
     zero_shot = bfm.prompt.reward("move-ego-0-0")
-    assert not np.allclose(zs["move-ego-0-0@standing"], zs["move-ego-0-0@fall"])
+    assert not np.allclose(zs["move-ego-0-0@pushed"], zs["move-ego-0-0@fall"])
     assert all(np.linalg.norm(z) == pytest.approx(np.sqrt(bfm.z_dim), rel=1e-3) for z in zs.values())
     assert any(not np.allclose(z, zero_shot) for z in zs.values())  # the search moved off the zero-shot z
     assert B.refine_env_steps(fams, refinement) == 2 * (16 + 1) * B.REFINE_STARTS * 30
     assert B.refine_env_steps(fams, None) == 0
+    assert B.estimate_env_steps(fams, 2, 60, model=True, refined=True) == 4 * 2 * 60
+    assert B.estimate_env_steps(fams, 2, 60, model=True) == 3 * 2 * 60  # one zero-shot prompt from three starts
+    assert B.estimate_env_steps(fams, 2, 60, model=False) == 3 * 2 * 60
 
 
 def test_cli_refine_is_for_the_behaviour_suite_only() -> None:

@@ -110,33 +110,35 @@ def eval_command(
 
 def _behaviours(ctx: typer.Context, ckpt: str, names: list[str] | None, episodes: int, steps: int, out: Path,
                 seed: int, refine: int) -> None:
-    """`--suite behaviours`: the agent and the zero and random floors from the same standing and fall starts."""
+    """`--suite behaviours`: the agent and the zero and random floors from the same standing, pushed and fall
+    starts."""
     from fbcpr.eval.behaviours import FAMILIES, check, estimate_env_steps, families, refine_env_steps, table
     from fbcpr.inference.agents import make_agent
 
     extra = [f"--{n.replace('_', '-')}" for n in ("motions", "fall_prob") if given(ctx, n)]
     if extra:
-        raise typer.BadParameter(f"{', '.join(extra)}: the behaviour checks start from standing and fall states "
-                                 "of their own and track no clips")
+        raise typer.BadParameter(f"{', '.join(extra)}: the behaviour checks start from standing, pushed and "
+                                 "fall states of their own and track no clips")
     fams = families(names)
     agents = {name: make_agent(name, seed=seed) for name in dict.fromkeys((ckpt, "zero", "random"))}
     refinement = reward_refinement(refine, steps, seed) if refine else None
-    total = sum(estimate_env_steps(fams, episodes, steps, a.z_dim > 0) + refine_env_steps(fams, refinement)
-                * (a.z_dim > 0) for a in agents.values())
+    total = sum(estimate_env_steps(fams, episodes, steps, a.z_dim > 0, refinement is not None)
+                + refine_env_steps(fams, refinement) * (a.z_dim > 0) for a in agents.values())
     minutes = total * ENV_STEP_S / 60
-    err_console.print(f"checking {len(fams)} of {len(FAMILIES)} behaviour families x 2 starts x {episodes} episodes "
-                      f"x {steps} steps for {', '.join(agents)}: {total:,} env steps, about "
-                      f"{max(1, round(minutes))} minute{'s' if minutes >= 1.5 else ''} on 2 CPU cores", highlight=False)
+    err_console.print(f"checking {len(fams)} of {len(FAMILIES)} behaviour families, each from its own start and "
+                      f"one other, x {episodes} episodes x {steps} steps for {', '.join(agents)}: {total:,} env steps, "
+                      f"about {max(1, round(minutes))} minute{'s' if minutes >= 1.5 else ''} on 2 CPU cores",
+                      highlight=False)
     results = check(agents, names, episodes=episodes, steps=steps, seed=seed, out=out, refine=refinement)
     console.print(table(results))
     goals = results["families"].get("goal_poses", {})
     if "poses_reached" in goals:
-        same = goals["reached_not_above_zero"]
+        same = goals["reached_not_above_floors"]
         console.print(f"goal poses reached in half the episodes or more: {len(goals['poses_reached'])} of "
                       f"{len(goals['agents'][results['agent']][goals['start']]['poses'])}"
-                      + (f"; no better than zero action on {len(same)} of them ({', '.join(same)})" if same else "")
-                      + f"; mean success counting only poses reached more often than by zero action: "
-                        f"{goals['success_above_zero']:.2f}", highlight=False)
+                      + (f"; no more often than by a floor on {len(same)} of them ({', '.join(same)})" if same else "")
+                      + f"; mean success counting only poses reached more often than by both floors: "
+                        f"{goals['success_above_floors']:.2f}", highlight=False)
     sheets = results.get("sheets")
     console.print(f"results in [bold]{out / 'behaviours.json'}[/]" + (f", contact sheets in [bold]{out / 'behaviours'}"
                                                                      "[/]" if isinstance(sheets, list) else

@@ -2,10 +2,12 @@
 (bobbing scores on a jump task), so each family here is judged by a physical test of the body, read off the
 observations and independent of the task's reward, next to the zero-action and random floors.
 
-Every family is prompted with one reward task (the goal family with each named pose) and run from standing
-starts and from fall starts, the same starts for every agent. A family passes when at least half the episodes
-from the start its rule names meet the rule. The floors ignore z, so their episodes from one start are shared by
-every family.
+Every family is prompted with one reward task (the goal family with each named pose) and run from the start its
+rule names (standing, pushed or fall) and from one other start, the same starts for every agent. A family passes
+when the judged agent's score from its own start (the share of episodes that meet the rule; for the goal family,
+the mean success) reaches the family's `need` and beats each floor's score from that start by `MARGIN`: a rule
+that the zero action or random actions also meet says nothing about the model. The floors ignore z, so their
+episodes from one start are shared by every family.
 """
 from __future__ import annotations
 
@@ -18,13 +20,18 @@ from typing import Any
 import numpy as np
 
 from fbcpr.core.errors import InputError
-from fbcpr.eval.upright import FALLEN, STANDING, got_up
+from fbcpr.eval.upright import FALLEN, PUSH, STANDING, got_up
 from fbcpr.metrics import GOAL_BETA, d_smpl, goal_proximity, goal_success
 from humanoid_env.model import CONTROL_HZ
 from humanoid_env.tasks.features import Features
 
-STARTS = ("standing", "fall")
+STARTS = ("standing", "pushed", "fall")
+#: the start shown beside a family's own: a pushed stand beside a quiet one, the rest beside a fall or a stand
+OTHER_START = {"standing": "fall", "pushed": "standing", "fall": "standing"}
 PASS_SHARE = 0.5
+#: how far the judged agent's score must exceed each floor's (zero action, random actions) from the family's own
+#: start: two episodes in eight, the standard error of the difference of two shares near 0.5 over 8 episodes each
+MARGIN = 0.25
 #: envs one vector env steps at once
 CHUNK = 96
 #: the recorded observations grow with episodes x steps: 9,600 (32 episodes of 300 steps) keep ~250 MB
@@ -162,9 +169,15 @@ class Family:
     judge: Judge | None = field(default=None, compare=False)
     need: float = PASS_SHARE
 
+    @property
+    def starts(self) -> tuple[str, str]:
+        """The start the rule reads, then the one shown beside it."""
+        return self.start, OTHER_START[self.start]
+
 
 FAMILIES: tuple[Family, ...] = (
-    Family("stand", "move-ego-0-0", "standing", "pelvis > 0.8 m and mean speed < 0.3 m/s over the last 5 s", _stand),
+    Family("stand", "move-ego-0-0", "pushed", "pelvis > 0.8 m and mean speed < 0.3 m/s over the last 5 s, from a "
+           "pushed standing start (which topples the zero action)", _stand),
     Family("walk", "move-ego-0-2", "standing", "1.5-3 m/s along the prompted direction, heading error <= 30 deg, "
            "pelvis > 0.6 m, over the last 5 s", _move(0.0, 2.0)),
     Family("run", "move-ego-0-4", "standing", "3-6 m/s along the prompted direction, heading error <= 30 deg, "
@@ -202,11 +215,19 @@ def families(names: Sequence[str] | None = None) -> list[Family]:
 
 
 def start_states(episodes: int, seed: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The standing and the fall starts every agent and family sees (fall starts drawn with seed + 1)."""
+    """The standing, pushed and fall starts every agent and family sees (fall starts drawn with seed + 1; pushed
+    ones, the standing pose with `PUSH`'s joint-angle and velocity noise, from a stream of their own)."""
     from humanoid_env.inits import DefaultInit, FallInit
 
     return {"standing": DefaultInit().sample(np.random.default_rng(seed), episodes),
-            "fall": FallInit().sample(np.random.default_rng(seed + 1), episodes)}
+            "fall": FallInit().sample(np.random.default_rng(seed + 1), episodes),
+            "pushed": DefaultInit(*PUSH).sample(np.random.default_rng((seed, 2)), episodes)}
+
+
+def beats_floors(score: float, floors: Sequence[float], need: float) -> bool:
+    """The pass rule: `score` reaches `need` and exceeds every floor's score by `MARGIN` (to 1e-6: shares of
+    episodes are exact fractions)."""
+    return score >= need and all(round(score - f, 6) >= MARGIN for f in floors)
 
 
 @dataclass
@@ -271,31 +292,51 @@ class Refinement:
     env_steps: int
 
 
-def _prompts(agent: Any, fams: Sequence[Family], refine: Refinement | None, seed: int,
-             on_refine: Callable[[int], None] | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """(z by prompt key, prompt key by family). A family's z is its task's prompt, refined from `REFINE_STARTS`
-    starts of the family's own kind (drawn apart from the checks') when `refine` is given (then keyed
-    "TASK@START"); the goal family's are each pose's, keyed "goal:NAME". A floor has one empty z, keyed ""."""
-    from humanoid_env.tasks import GOALS, goal_obs
+def plan(fams: Sequence[Family], model: bool, refined: bool) -> tuple[dict[str, list[str]], dict[str, str]]:
+    """(starts by prompt key, prompt key by family): each prompt runs from its families' own and other starts. A
+    family's key is its task ("TASK@START" when refined: a z per kind of start); the goal family's are each pose's,
+    "goal:NAME". A floor runs one empty prompt, keyed "", from every start any family reads."""
+    from humanoid_env.tasks import GOALS
 
-    if agent.z_dim == 0:
-        return {"": np.zeros(0, np.float32)}, {f.name: "" for f in fams}
-    zs: dict[str, np.ndarray] = {}
+    starts: dict[str, set[str]] = {}
     key_of: dict[str, str] = {}
     for f in fams:
-        if f.judge is None:
-            zs.update({f"goal:{g}": np.asarray(agent.goal_z(goal_obs(g)), np.float32) for g in GOALS})
-            continue
-        key = f"{f.prompt}@{f.start}" if refine else f.prompt
-        key_of[f.name] = key
-        if key in zs:
+        if not model:
+            keys = [""]
+        elif f.judge is None:
+            keys = [f"goal:{g}" for g in GOALS]
+        else:
+            key_of[f.name] = f"{f.prompt}@{f.start}" if refined else f.prompt
+            keys = [key_of[f.name]]
+        for k in keys:
+            starts.setdefault(k, set()).update(f.starts)
+    if not model:
+        key_of = {f.name: "" for f in fams}
+    return {k: [s for s in STARTS if s in v] for k, v in starts.items()}, key_of
+
+
+def _prompts(agent: Any, fams: Sequence[Family], refine: Refinement | None, seed: int,
+             on_refine: Callable[[int], None] | None = None
+             ) -> tuple[dict[str, np.ndarray], dict[str, list[str]], dict[str, str]]:
+    """(z by prompt key, starts by prompt key, prompt key by family), keyed as `plan` says. A family's z is its
+    task's prompt, refined from `REFINE_STARTS` starts of the family's own kind (drawn apart from the checks') when
+    `refine` is given; a goal pose's is its goal prompt; a floor's is empty."""
+    from humanoid_env.tasks import goal_obs
+
+    starts, key_of = plan(fams, agent.z_dim > 0, refine is not None)
+    if agent.z_dim == 0:
+        return {"": np.zeros(0, np.float32)}, starts, key_of
+    zs = {k: np.asarray(agent.goal_z(goal_obs(k[5:])), np.float32) for k in starts if k.startswith("goal:")}
+    for f in fams:
+        key = key_of.get(f.name)
+        if key is None or key in zs:
             continue
         if refine is None:
             zs[key] = np.asarray(agent.reward_z(f.prompt), np.float32)
         else:
-            starts = start_states(REFINE_STARTS, seed + 1000)[f.start]
-            zs[key] = np.asarray(refine.search(agent, f.prompt, starts, on_refine), np.float32)
-    return zs, key_of
+            own = start_states(REFINE_STARTS, seed + 1000)[f.start]
+            zs[key] = np.asarray(refine.search(agent, f.prompt, own, on_refine), np.float32)
+    return zs, starts, key_of
 
 
 def refine_env_steps(fams: Sequence[Family], refine: Refinement | None) -> int:
@@ -332,8 +373,8 @@ def run_agent(agent: Any, fams: Sequence[Family], starts: dict[str, tuple[np.nda
     from humanoid_env.observation import OBS_DIM
     from humanoid_env.tasks import goal_obs
 
-    zs, key_of = _prompts(agent, fams, refine, seed, on_refine)
-    keys = [(p, s) for p in zs for s in starts]
+    zs, need, key_of = _prompts(agent, fams, refine, seed, on_refine)
+    keys = [(p, s) for p in zs for s in need[p]]
     episodes = len(starts["standing"][0])
     n = len(keys) * episodes
     batch = Batch(z=np.concatenate([np.repeat(zs[p][None], episodes, 0) for p, _ in keys]),
@@ -390,12 +431,25 @@ def judge_family(f: Family, run: AgentRun, start: str) -> dict[str, Any]:
             "final_distance": float(np.mean([p["final_distance"] for p in poses.values()])), "poses": poses}
 
 
-def estimate_env_steps(fams: Sequence[Family], episodes: int, steps: int, model: bool) -> int:
-    """Env steps one agent simulates: every prompt from both starts (a floor: one prompt for all)."""
-    from humanoid_env.tasks import GOALS
+def estimate_env_steps(fams: Sequence[Family], episodes: int, steps: int, model: bool, refined: bool = False) -> int:
+    """Env steps one agent simulates: every prompt of `plan` from each of its starts."""
+    return sum(len(s) for s in plan(fams, model, refined)[0].values()) * episodes * steps
 
-    prompts = sum(len(GOALS) if f.judge is None else 1 for f in fams) if model else 1
-    return prompts * len(STARTS) * episodes * steps
+
+#: the floor agents a judged agent is held against, by the names `fbcpr.inference.agents.make_agent` knows
+FLOORS = ("zero", "random")
+
+
+def _goals_beyond_floors(poses: dict[str, dict[str, Any]], judged: str, floors: Sequence[str]) -> dict[str, Any]:
+    """The goal family's score for the judged agent: the mean success over the poses, a pose counting only where
+    the agent reaches it more often than every floor (standing still reaches the T-poses: the rest pose is one)."""
+    mine = poses[judged]
+    best = {g: max(poses[f][g]["success"] for f in floors) for g in mine}
+    reached = [g for g, p in mine.items() if p["success"] >= PASS_SHARE]  # in half the episodes or more
+    return {"poses_reached": reached,
+            "reached_not_above_floors": [g for g in reached if mine[g]["success"] <= best[g]],
+            "success_above_floors": float(np.mean([p["success"] if p["success"] > best[g] else 0.0
+                                                   for g, p in mine.items()]))}
 
 
 def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: int = 8, steps: int = 300,
@@ -403,7 +457,8 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
           num_threads: int | None = None, refine: Refinement | None = None) -> dict[str, Any]:
     """Run the behaviour families for each agent (the first is the one judged; the others, usually the zero and
     random floors, stand beside it) from the same starts, and with `out` write behaviours.json and one contact
-    sheet per family there. With `refine`, each family's task prompt is refined first (the goal poses' are not)."""
+    sheet per family there. A family passes where the judged agent's score beats every floor among `agents` (named
+    in `FLOORS`) by `MARGIN`. With `refine`, each family's task prompt is refined first (the goal poses' are not)."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -425,7 +480,8 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
         for name, agent in agents.items():
             polish = refine if agent.z_dim > 0 else None
             tuning = progress.add_task("refine", total=refine_env_steps(fams, polish)) if polish else None
-            bar = progress.add_task(name, total=estimate_env_steps(fams, episodes, steps, agent.z_dim > 0))
+            bar = progress.add_task(name, total=estimate_env_steps(fams, episodes, steps, agent.z_dim > 0,
+                                                                   polish is not None))
 
             def advance(k: int, bar: Any = bar) -> None:
                 progress.advance(bar, k)
@@ -435,24 +491,23 @@ def check(agents: dict[str, Any], names: Sequence[str] | None = None, episodes: 
 
             runs[name] = run_agent(agent, fams, starts, steps, advance, num_threads, polish, seed, refined)
     judged = next(iter(agents))
-    results: dict[str, Any] = {"agent": judged, "episodes": episodes, "steps": steps, "seed": seed,
+    results: dict[str, Any] = {"agent": judged, "episodes": episodes, "steps": steps, "seed": seed, "margin": MARGIN,
                                "refine": refine.generations if refine else 0,
                                "refined_prompts": sorted(refined_prompts(agents[judged]) & {f.prompt for f in fams}),
                                "families": {}}
+    floors = [name for name in agents if name in FLOORS and name != judged]
     for f in fams:
-        per_agent = {name: {s: judge_family(f, run, s) for s in STARTS} for name, run in runs.items()}
-        results["families"][f.name] = {"prompt": f.prompt, "start": f.start, "rule": f.rule, "need": f.need,
-                                       "agents": per_agent, "passed": per_agent[judged][f.start]["pass"] >= f.need}
-    goals = results["families"].get("goal_poses")
-    if goals is not None and "zero" in goals["agents"] and judged != "zero":
-        mine, zero = (goals["agents"][a][goals["start"]]["poses"] for a in (judged, "zero"))
-        reached = [g for g, p in mine.items() if p["success"] >= PASS_SHARE]
-        goals["poses_reached"] = reached  # in half the episodes or more
-        goals["reached_not_above_zero"] = [g for g in reached if mine[g]["success"] <= zero[g]["success"]]
-        # the rest pose is a T-pose: standing still reaches those poses, so only success beyond the floor's counts
-        above = [p["success"] if p["success"] > zero[g]["success"] else 0.0 for g, p in mine.items()]
-        goals["success_above_zero"] = float(np.mean(above))
-        goals["passed"] = goals["success_above_zero"] >= goals["need"]
+        per_agent = {name: {s: judge_family(f, run, s) for s in f.starts} for name, run in runs.items()}
+        scores = {name: a[f.start]["pass"] for name, a in per_agent.items()}
+        entry: dict[str, Any] = {"prompt": f.prompt, "start": f.start, "rule": f.rule, "need": f.need,
+                                 "agents": per_agent}
+        if f.judge is None and floors:
+            entry.update(_goals_beyond_floors({name: per_agent[name][f.start]["poses"] for name in agents}, judged,
+                                              floors))
+            scores[judged] = entry["success_above_floors"]
+        entry["scores"] = scores
+        entry["passed"] = beats_floors(scores[judged], [scores[n] for n in floors], f.need)
+        results["families"][f.name] = entry
     passed = [n for n, e in results["families"].items() if e["passed"]]
     results["summary"] = {"passed": passed, "families_passed": len(passed), "of": len(fams)}
     if out is not None:
@@ -521,10 +576,12 @@ def write_sheets(fams: Sequence[Family], runs: dict[str, AgentRun], out: Path, f
 
 
 def table(results: dict[str, Any]) -> Any:
-    """A rich table: each family's pass share from its own start for every agent, the other start beside it."""
+    """A rich table: each family's score from its own start for every agent, how far the judged agent is above the
+    better floor, its share from the other start, and whether it passed."""
     from rich.table import Table
 
     agents = list(next(iter(results["families"].values()))["agents"])
+    judged = results["agent"]
     refined = f", prompts refined by {results['refine']} generations" if results.get("refine") else ""
     if results.get("refined_prompts"):
         refined += f", stored prompts refined at export: {', '.join(results['refined_prompts'])}"
@@ -534,14 +591,19 @@ def table(results: dict[str, Any]) -> Any:
     t.add_column("start")
     for a in agents:
         t.add_column(a, justify="right")
+    t.add_column("above floors", justify="right")
     t.add_column("other start", justify="right")
     t.add_column("passed")
     for name, e in results["families"].items():
-        other = next(s for s in STARTS if s != e["start"])
-        cells = [f"{e['agents'][a][e['start']]['pass']:.2f}" for a in agents]
-        t.add_row(name, e["start"], *cells, f"{e['agents'][agents[0]][other]['pass']:.2f}",
+        floors = [e["scores"][a] for a in agents if a in FLOORS and a != judged]
+        above = f"{e['scores'][judged] - max(floors):+.2f}" if floors else "-"
+        other = e["agents"][judged][OTHER_START[e["start"]]]["pass"]
+        t.add_row(name, e["start"], *(f"{e['scores'][a]:.2f}" for a in agents), above, f"{other:.2f}",
                   "[green]yes[/]" if e["passed"] else "[red]no[/]")
     s = results["summary"]
-    t.caption = f"{agents[0]} passes {s['families_passed']} of {s['of']} families (a family needs 0.5 of its " \
-                f"episodes, the goal poses 0.3 mean success beyond zero action's)"
+    others = ", ".join(f"{o} beside {k}" for k, o in OTHER_START.items())
+    t.caption = (f"{judged} passes {s['families_passed']} of {s['of']} families: a family needs 0.5 of its episodes "
+                 f"(the goal poses 0.3 mean success, counting only poses reached more often than by every floor) "
+                 f"and {results['margin']:g} more than each floor from the same start. Other start: {judged} from "
+                 f"{others}")
     return t

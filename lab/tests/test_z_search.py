@@ -27,9 +27,9 @@ def test_judge_all_scores_each_z_per_episode() -> None:
     bfm = BFM.pretrained()
     zs = np.stack([bfm.prompt.reward("move-ego-0-0"), bfm.prompt.reward("move-ego-0-2")])
     fams = B.families(["stand", "walk"])
-    out = z_search.judge_all(bfm, zs, B.start_states(2, 0), fams, steps=90)
+    out = z_search.judge_all(bfm, zs, B.start_states(2, 0), fams, steps=300)
     assert out["stand"]["pass"].shape == (2, 2) and out["walk"]["measure"].shape == (2, 2)
-    assert out["stand"]["pass"][0].all()  # the stand prompt stands still
+    assert out["stand"]["pass"][0].all()  # the stand prompt stands still after a push (the family's start)
     assert out["walk"]["measure"][1].mean() > out["walk"]["measure"][0].mean() + 0.5  # the walk prompt moves
 
 
