@@ -123,6 +123,7 @@ class RetargetReport:
     foot_slide: float = 0.0  # m/s, mean horizontal speed of a foot over the frames it is in contact
     contacts: np.ndarray | None = None  # (T, 2) bool, left/right foot in contact (from the source)
     contact_share: float = 0.0  # share of frames with a foot in contact: a slide of 0 over no contact says nothing
+    at_limits: dict[str, int] = field(default_factory=dict)  # joint -> frames it sits at a bound of its range
     peak_limb_speed: float = 0.0  # leg lengths/s, fastest keypoint relative to the pelvis in the source
 
     @property
@@ -272,6 +273,17 @@ def limb_speeds(positions: dict[str, np.ndarray], times: np.ndarray) -> np.ndarr
     relative = np.stack([v - pelvis for v in positions.values()], axis=1)  # (T, keypoints, 3)
     step = np.linalg.norm(np.diff(relative, axis=0), axis=2).max(axis=1)
     return step / (leg * np.diff(times))
+
+
+#: Within this (rad) of a bound, a joint counts as held at its limit.
+LIMIT_TOL = 1e-3
+
+
+def limit_hits(qpos: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> dict[str, int]:
+    """joint -> frames it sits at a bound of its range, most first. The IK never leaves the ranges (so nothing is
+    clipped after it); a joint held at a bound is where the source asked for more than this body's joint has."""
+    at = ((qpos[:, 7:] <= lo + LIMIT_TOL) | (qpos[:, 7:] >= hi - LIMIT_TOL)).sum(axis=0)
+    return {JOINT_NAMES[j]: int(at[j]) for j in np.argsort(-at, kind="stable") if at[j]}
 
 
 def source_contacts(src_pos: dict[str, np.ndarray], fps: float, scale: float, floor: float | None) -> np.ndarray:
@@ -455,13 +467,14 @@ class Retargeter:
         over = (qpos[:, 7:] < lo - 1e-4) | (qpos[:, 7:] > hi + 1e-4)
         clipped = {JOINT_NAMES[j]: int(c) for j, c in enumerate(over.sum(axis=0)) if c}
         qpos[:, 7:] = np.clip(qpos[:, 7:], lo, hi)
+        at_limits = limit_hits(qpos, lo, hi)
         qpos[:, 2] += ground_shift(self.model, qpos, contacts)
         penetration, gap = floor_metrics(self.model, qpos, contacts)
         report = RetargetReport(
             name=src.name, frames=n, seconds=n / self.fps, compute_seconds=time.perf_counter() - start,
             clipped=clipped, max_penetration=penetration, max_contact_gap=gap, keypoint_error=err / n,
             foot_slide=foot_slide(self.model, qpos, contacts, self.fps), contacts=contacts,
-            contact_share=float(contacts.any(axis=1).mean()),
+            contact_share=float(contacts.any(axis=1).mean()), at_limits=at_limits,
             peak_limb_speed=float(limb_speeds(src.positions, src.times).max()),
         )
         return qpos, report

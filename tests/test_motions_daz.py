@@ -10,9 +10,10 @@ import pytest
 from typer.testing import CliRunner
 
 from fbcpr.cli.app import app
+from humanoid_env.model import JOINT_NAMES, joint_ranges
 from motions.importers import import_file
 from motions.importers.bvh import leading_rest_frames, load_bvh
-from motions.retarget import QUALITY_LIMITS, RetargetReport
+from motions.retarget import QUALITY_LIMITS, RetargetReport, limit_hits
 
 CMU = Path(__file__).parents[1].parent / "shared" / "mocap" / "cmu"
 DAZ = CMU / "bvh-daz"
@@ -80,9 +81,19 @@ def test_import_with_fps_writes_the_quality_of_each_take_beside_the_clips(tmp_pa
     entry = json.loads((out / "import_summary.json").read_text())["clips"][0]
     assert entry["seconds"] == pytest.approx(2 * 85 / 60, abs=0.1)  # 86 frames read at 30 fps, not 60
     for key in ("foot_slide_m_s", "max_foot_penetration_m", "clipped_joint_frames", "contact_share",
-                "peak_limb_speed_legs_s", "flags"):
+                "at_limit_share", "at_limit_joints", "peak_limb_speed_legs_s", "flags"):
         assert key in entry
     assert "limbs" in res.output and "flags" in res.output
     res = CliRunner().invoke(app, ["motions", "import", str(CMU / "bvh" / "002_03.bvh"), "--out", str(out),
                                    "--fps", "-5"])
     assert res.exit_code != 0 and "--fps" in res.output
+
+
+def test_joints_held_at_a_bound_are_counted_most_first():
+    lo, hi = joint_ranges().T
+    qpos = np.zeros((10, 7 + len(lo)))
+    qpos[:, 7:] = (lo + hi) / 2
+    qpos[:6, 7 + 3] = hi[3]  # six frames at the upper bound
+    qpos[:2, 7 + 9] = lo[9] + 1e-4  # two within the tolerance of the lower one
+    qpos[:, 7 + 12] = lo[12] + 0.05  # near, not at, a bound
+    assert limit_hits(qpos, lo, hi) == {JOINT_NAMES[3]: 6, JOINT_NAMES[9]: 2}

@@ -112,8 +112,8 @@ def import_cmd(
                                      "(file's rate / FPS) times as long."),
 ) -> None:
     """Convert motion files to 30 Hz clips; a failing file is reported and skipped, and writes are atomic.
-    Each clip's quality (foot slide, floor penetration, joint-limit hits, capture glitches) is printed and kept in
-    import_summary.json beside the clips, with the reasons it is worth a look under "flags"."""
+    Each clip's quality (foot slide, floor penetration, joints clipped or held at a bound, capture glitches) is
+    printed and kept in import_summary.json beside the clips, with the reasons it is worth a look under "flags"."""
     from fbcpr.core.paths import check_output_folder
     from motions.clip import save_clip
     from motions.importers import import_file
@@ -158,6 +158,9 @@ def import_cmd(
                              "max_contact_gap_m": round(report.max_contact_gap, 4),
                              "foot_slide_m_s": round(report.foot_slide, 4),
                              "contact_share": round(report.contact_share, 3),
+                             "at_limit_share": round(sum(report.at_limits.values()) /
+                                                     max(clip.n_frames * (clip.qpos.shape[1] - 7), 1), 4),
+                             "at_limit_joints": dict(list(report.at_limits.items())[:5]),
                              "peak_limb_speed_legs_s": round(report.peak_limb_speed, 1),
                              "keypoint_error_m": round(report.keypoint_error, 4), "flags": report.flags()})
             except Exception as err:  # one bad file must not stop the others

@@ -64,7 +64,8 @@ def main() -> None:
         width = TILE_W if clip is None else 2 * TILE_W  # a tracking tile: the body left, the clip right
         for t in picks:
             tile = Image.fromarray(ep.frames[t]).resize((width, TILE_H))
-            ImageDraw.Draw(tile).text((4, 4), f"{t / CONTROL_HZ:.1f} s  pelvis {ep.obs[t][0]:.2f} m", fill=(255, 255, 0))
+            label = f"{t / CONTROL_HZ:.1f} s  pelvis {ep.obs[t][0]:.2f} m"
+            ImageDraw.Draw(tile).text((4, 4), label, fill=(255, 255, 0))
             tiles.append(tile)
         row = Image.new("RGB", (sum(t.width for t in tiles), tiles[0].height + 18), (20, 20, 20))
         ImageDraw.Draw(row).text((4, 2), spec, fill=(255, 255, 255))

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from humanoid_env.model import JOINT_NAMES
 from motions.clip import FPS, from_qpos, save_clip
 from motions.importers.bvh import Y_UP_TO_Z_UP, leading_rest_frames
 from motions.retarget import Retargeter, RetargetReport, SourceMotion
@@ -105,6 +106,8 @@ def report_entry(path: Path, clip_name: str, frames: int, report: RetargetReport
             "max_foot_penetration_m": round(report.max_penetration, 4),
             "max_contact_gap_m": round(report.max_contact_gap, 4), "foot_slide_m_s": round(report.foot_slide, 4),
             "contact_share": round(report.contact_share, 3),
+            "at_limit_share": round(sum(report.at_limits.values()) / max(frames * len(JOINT_NAMES), 1), 4),
+            "at_limit_joints": dict(list(report.at_limits.items())[:5]),
             "peak_limb_speed_legs_s": round(report.peak_limb_speed, 1),
             "keypoint_error_m": round(report.keypoint_error, 4), "flags": report.flags()}
 

@@ -122,7 +122,8 @@ def main() -> None:
               f"{r['mpjpe_ratio']:.2f} | {r['emd']:.2f} | {r['emd_floor']:.2f} | {r['emd_ratio']:.2f} | "
               f"{r['verdict']} | {r['lag_steps']}, {r['mpjpe_at_lag']:.3f} | {r['drift_m']:.2f} |")
     mean = {k: float(np.mean([r[k] for r in rows])) for k in ("mpjpe", "mpjpe_floor", "emd", "emd_floor")}
-    print(f"mean: MPJPE {mean['mpjpe']:.3f} / floor {mean['mpjpe_floor']:.3f} = {mean['mpjpe'] / mean['mpjpe_floor']:.2f}x;"
+    print(f"mean: MPJPE {mean['mpjpe']:.3f} / floor {mean['mpjpe_floor']:.3f} = "
+          f"{mean['mpjpe'] / mean['mpjpe_floor']:.2f}x;"
           f" EMD {mean['emd']:.2f} / floor {mean['emd_floor']:.2f} = {mean['emd'] / mean['emd_floor']:.2f}x; "
           f"falls {sum(r['fell_at_s'] is not None for r in rows)} of {len(rows)}")
 

@@ -20,7 +20,7 @@ from humanoid_env.model import BODY_NAMES, JOINT_NAMES, joint_ranges, load_model
 from motions.kinematics import resample_qpos
 from motions.limits import MIN_FRAME_SECONDS, check_frame_times, max_clip_seconds
 from motions.npz import read_npz
-from motions.retarget import RetargetReport, floor_metrics, foot_slide, ground_shift
+from motions.retarget import RetargetReport, floor_metrics, foot_slide, ground_shift, limit_hits
 
 #: SMPL joint index for each of our non-root bodies, in BODY_NAMES[1:] order.
 SMPL_INDEX = {
@@ -135,6 +135,7 @@ def import_amass(path: str | Path, fps: float = 30.0, up_axis: str = "z",
     over = (qpos[:, 7:] < lo - 1e-4) | (qpos[:, 7:] > hi + 1e-4)
     clipped = {JOINT_NAMES[j]: int(c) for j, c in enumerate(over.sum(axis=0)) if c}
     qpos[:, 7:] = np.clip(qpos[:, 7:], lo, hi)
+    at_limits = limit_hits(qpos, lo, hi)
     contacts = foot_contacts(model, qpos, fps)
     qpos[:, 2] += ground_shift(model, qpos, contacts)
     penetration, gap = floor_metrics(model, qpos, contacts)
@@ -142,5 +143,6 @@ def import_amass(path: str | Path, fps: float = 30.0, up_axis: str = "z",
         name=path.stem, frames=qpos.shape[0], seconds=qpos.shape[0] / fps, compute_seconds=time.perf_counter() - start,
         clipped=clipped, max_penetration=penetration, max_contact_gap=gap, contacts=contacts,
         foot_slide=foot_slide(model, qpos, contacts, fps), contact_share=float(contacts.any(axis=1).mean()),
+        at_limits=at_limits,
     )
     return qpos, report, {"source": f"AMASS/SMPL {path.name}", "license": "see the AMASS license of the source dataset"}
