@@ -6,7 +6,7 @@ For each clip, `fbcpr track`'s rollout (z_t from the clip's next states, from th
   to the pelvis, in the heading frame (the observation's own body positions); EMD (`fbcpr.metrics.emd`); each
   beside the first-pose floor (the clip's first pose held still, `hold_first_pose_emd`'s body);
 - fall: the first step the pelvis is below FALLEN_HEIGHT while the clip's is above it, and whether it is still
-  down at the end;
+  down at the end; the MPJPE and its floor over the steps before it (how it tracked while it was up);
 - lag: the delay (0-1 s) at which the body's poses best match the clip's earlier ones, and how much that delay
   lowers the MPJPE;
 - drift: the pelvis's horizontal distance from the clip's at the end.
@@ -68,9 +68,11 @@ def diagnose(bfm: BFM, clip: Clip, seed: int) -> dict:
     ep = rollout(bfm, zs, seed=seed, start=(clip.qpos[0], clip.qvel[0]), label=f"track {clip.name}")
     n = min(len(ep.obs), clip.n_frames)
     agent, ref, qpos = np.stack(ep.obs)[:n], clip.obs[:n], np.stack(ep.qpos)[:n]
-    err, floor = mpjpe(agent, ref), mpjpe(frozen_obs(clip)[:len(agent)], ref)
+    frozen = frozen_obs(clip)[:n]
+    err, floor = mpjpe(agent, ref), mpjpe(frozen, ref)
     down = (agent[:, 0] < FALLEN_HEIGHT) & (ref[:, 0] >= FALLEN_HEIGHT)
     fell_at = int(np.argmax(down)) if down.any() else None
+    up = slice(0, max(fell_at or n, 2))  # the steps before the fall: how it tracked while it was up
     lag, lagged = best_lag(agent, ref)
     out = {"clip": clip.name, "seconds": round(clip.seconds, 2), "mpjpe": round(err, 4), "mpjpe_floor": round(floor, 4),
            "emd": round(emd(agent, clip.obs), 4), "emd_floor": round(hold_first_pose_emd(clip), 4),
@@ -79,7 +81,9 @@ def diagnose(bfm: BFM, clip: Clip, seed: int) -> dict:
            "lag_steps": lag, "mpjpe_at_lag": round(lagged, 4),
            "drift_m": round(float(np.linalg.norm(qpos[-1, :2] - clip.qpos[len(qpos) - 1, :2])), 3),
            "clip_travel_m": round(float(np.linalg.norm(clip.qpos[-1, :2] - clip.qpos[0, :2])), 3),
-           "diverged": ep.diverged_at is not None}
+           "diverged": ep.diverged_at is not None,
+           "mpjpe_while_up": round(mpjpe(agent[up], ref[up]), 4),
+           "floor_while_up": round(mpjpe(frozen[up], ref[up]), 4)}
     out["mpjpe_ratio"] = round(err / floor, 3)
     out["emd_ratio"] = round(out["emd"] / out["emd_floor"], 3)
     if fell_at is not None:
@@ -115,12 +119,14 @@ def main() -> None:
         print(json.dumps(row), flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"checkpoint": args.checkpoint, "seed": args.seed, "clips": rows}, indent=2))
-    print("| take | s | MPJPE (m) | floor | ratio | EMD | floor | ratio | verdict | lag (steps, MPJPE) | drift (m) |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---|---|---:|")
+    print("| take | s | MPJPE (m) | floor | ratio | EMD | floor | ratio | verdict | ratio while up | lag (steps) | "
+          "drift / clip travel (m) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---|")
     for r in rows:
         print(f"| {r['take'].removeprefix('cmu/')} | {r['seconds']:.1f} | {r['mpjpe']:.3f} | {r['mpjpe_floor']:.3f} | "
               f"{r['mpjpe_ratio']:.2f} | {r['emd']:.2f} | {r['emd_floor']:.2f} | {r['emd_ratio']:.2f} | "
-              f"{r['verdict']} | {r['lag_steps']}, {r['mpjpe_at_lag']:.3f} | {r['drift_m']:.2f} |")
+              f"{r['verdict']} | {r['mpjpe_while_up'] / r['floor_while_up']:.2f} | {r['lag_steps']} | "
+              f"{r['drift_m']:.1f} / {r['clip_travel_m']:.1f} |")
     mean = {k: float(np.mean([r[k] for r in rows])) for k in ("mpjpe", "mpjpe_floor", "emd", "emd_floor")}
     print(f"mean: MPJPE {mean['mpjpe']:.3f} / floor {mean['mpjpe_floor']:.3f} = "
           f"{mean['mpjpe'] / mean['mpjpe_floor']:.2f}x;"
