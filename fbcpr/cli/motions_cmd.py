@@ -6,6 +6,7 @@ import os
 import re
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import typer
@@ -13,6 +14,10 @@ from rich.table import Table
 
 from fbcpr.cli.common import HelpGroup, cli_errors, console, err_console, progress
 from fbcpr.core.errors import InputError
+
+if TYPE_CHECKING:
+    from motions.clip import Clip
+    from motions.retarget import RetargetReport
 
 motions_app = typer.Typer(help="Motion clips: import (AMASS, DeepMimic, BVH, ASF/AMC), inspect, render.",
                           no_args_is_help=True,
@@ -72,6 +77,21 @@ def _clipped_text(entry: dict) -> str:
         return "0"
     named = ", ".join(f"{j} {n}" for j, n in list(joints.items())[:3])
     return f"{entry['clipped_joint_frames']}: {named}{', ...' if len(joints) > 3 else ''}"
+
+
+def summary_entry(path: Path, clip_file: str, clip: Clip, report: RetargetReport) -> dict:
+    """One imported take's line in import_summary.json: its size and its quality, with the flags worth a look."""
+    joint_frames = max(clip.n_frames * (clip.qpos.shape[1] - 7), 1)
+    return {"file": str(path), "clip": clip_file, "frames": clip.n_frames, "seconds": round(clip.seconds, 3),
+            "clipped_joint_frames": report.clipped_total,
+            "clipped_joints": dict(sorted(report.clipped.items(), key=lambda kv: -kv[1])),
+            "max_foot_penetration_m": round(report.max_penetration, 4),
+            "max_contact_gap_m": round(report.max_contact_gap, 4), "foot_slide_m_s": round(report.foot_slide, 4),
+            "contact_share": round(report.contact_share, 3),
+            "at_limit_share": round(sum(report.at_limits.values()) / joint_frames, 4),
+            "at_limit_joints": dict(list(report.at_limits.items())[:5]),
+            "peak_limb_speed_legs_s": round(report.peak_limb_speed, 1),
+            "keypoint_error_m": round(report.keypoint_error, 4), "flags": report.flags()}
 
 
 def merge_summary(path: Path, clips: list[dict], failures: list[dict]) -> dict:
@@ -151,18 +171,7 @@ def import_cmd(
                     stem = f"{clip.name}_{k}"
                 used.add(stem)
                 save_clip(clip, out / f"{stem}.npz")
-                done.append({"file": str(path), "clip": f"{stem}.npz", "frames": clip.n_frames,
-                             "seconds": round(clip.seconds, 3), "clipped_joint_frames": report.clipped_total,
-                             "clipped_joints": dict(sorted(report.clipped.items(), key=lambda kv: -kv[1])),
-                             "max_foot_penetration_m": round(report.max_penetration, 4),
-                             "max_contact_gap_m": round(report.max_contact_gap, 4),
-                             "foot_slide_m_s": round(report.foot_slide, 4),
-                             "contact_share": round(report.contact_share, 3),
-                             "at_limit_share": round(sum(report.at_limits.values()) /
-                                                     max(clip.n_frames * (clip.qpos.shape[1] - 7), 1), 4),
-                             "at_limit_joints": dict(list(report.at_limits.items())[:5]),
-                             "peak_limb_speed_legs_s": round(report.peak_limb_speed, 1),
-                             "keypoint_error_m": round(report.keypoint_error, 4), "flags": report.flags()})
+                done.append(summary_entry(path, f"{stem}.npz", clip, report))
             except Exception as err:  # one bad file must not stop the others
                 failed.append({"file": str(path),
                                "reason": str(err).strip().splitlines()[0] if str(err) else type(err).__name__})

@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from humanoid_env.model import JOINT_NAMES
+from fbcpr.cli.motions_cmd import summary_entry
 from motions.clip import FPS, from_qpos, save_clip
 from motions.importers.bvh import Y_UP_TO_Z_UP, leading_rest_frames
-from motions.retarget import Retargeter, RetargetReport, SourceMotion
+from motions.retarget import Retargeter, SourceMotion
 
 EXPMAP_FPS = 120.0
 N_JOINTS = 38
@@ -98,20 +98,6 @@ def load_expmap(path: Path, fps: float = EXPMAP_FPS) -> SourceMotion:
                         license="CMU Graphics Lab Motion Capture Database terms (mocap.cs.cmu.edu)")
 
 
-def report_entry(path: Path, clip_name: str, frames: int, report: RetargetReport) -> dict:
-    """One take's quality, in the fields `fbcpr motions import` writes to import_summary.json."""
-    return {"file": str(path), "clip": f"{clip_name}.npz", "frames": frames, "seconds": round(frames / FPS, 3),
-            "clipped_joint_frames": report.clipped_total,
-            "clipped_joints": dict(sorted(report.clipped.items(), key=lambda kv: -kv[1])),
-            "max_foot_penetration_m": round(report.max_penetration, 4),
-            "max_contact_gap_m": round(report.max_contact_gap, 4), "foot_slide_m_s": round(report.foot_slide, 4),
-            "contact_share": round(report.contact_share, 3),
-            "at_limit_share": round(sum(report.at_limits.values()) / max(frames * len(JOINT_NAMES), 1), 4),
-            "at_limit_joints": dict(list(report.at_limits.items())[:5]),
-            "peak_limb_speed_legs_s": round(report.peak_limb_speed, 1),
-            "keypoint_error_m": round(report.keypoint_error, 4), "flags": report.flags()}
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sources", type=Path, nargs="+", help="expmap .txt files or folders of them")
@@ -129,7 +115,7 @@ def main() -> None:
         out.mkdir(parents=True, exist_ok=True)
         clip = from_qpos(qpos, name=path.stem, source=src.source, license=src.license, fps=FPS)
         save_clip(clip, out / f"{path.stem}.npz")
-        entries.append(report_entry(path, str(rel.with_suffix("")), clip.n_frames, report))
+        entries.append(summary_entry(path, f"{rel.with_suffix('')}.npz", clip, report))
         print(f"{rel}: {clip.seconds:.1f} s in {time.perf_counter() - start:.1f} s, "
               f"flags {', '.join(report.flags()) or '-'}", flush=True)
     summary = {"clips": entries, "failures": [], "total_seconds": round(sum(e["seconds"] for e in entries), 3)}
