@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 from pathlib import Path
 
 import numpy as np
+from tracking_split import clip_file, read_split  # the sibling script: the split's lists and clip files
 
 from fbcpr import BFM
 from fbcpr.cli.prompt_cmd import rollout
@@ -35,11 +35,6 @@ from humanoid_env.observation import observe
 from motions.clip import Clip, load_clip
 
 MAX_LAG = 30  # steps: 1 s
-
-
-def clip_path(take: str, clips: Path) -> Path:
-    """The imported clip of a take listed relative to the shared motion capture folder."""
-    return clips / Path(take.removeprefix("cmu/")).with_suffix(".npz")
 
 
 def body_positions(obs: np.ndarray) -> np.ndarray:
@@ -97,11 +92,6 @@ def diagnose(bfm: BFM, clip: Clip, seed: int) -> dict:
     return out
 
 
-def read_split(path: Path) -> list[str]:
-    return [re.split(r"\s+#", line)[0].strip() for line in path.read_text().splitlines()
-            if line.strip() and not line.startswith("#")]
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint")
@@ -113,7 +103,7 @@ def main() -> None:
     bfm = BFM.load(args.checkpoint)
     rows = []
     for take in read_split(args.split):
-        row = diagnose(bfm, load_clip(clip_path(take, args.clips)), args.seed)
+        row = diagnose(bfm, load_clip(clip_file(take, args.clips)), args.seed)
         row["take"] = take
         rows.append(row)
         print(json.dumps(row), flush=True)

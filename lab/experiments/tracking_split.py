@@ -10,6 +10,11 @@ conversions trim differently), and walks of one gait score 0.8-0.9 with each oth
 a near-twin of a held-out take is left out of training too, at the cost of a few walks.
 
     python lab/experiments/tracking_split.py ../shared/mocap --out lab/splits/train-tracking.txt
+
+`--materialise DIR --clips data/clips/cmu-all` also writes the imported clips of both lists into two flat folders,
+DIR/train and DIR/heldout, the way a training config or `fbcpr eval --motions` reads them: a clip library wants
+unique names, and the forms repeat file names (salsa/05, indian/05; train/ and test/ walking_13), so each clip is
+named after its take's path (`bvh-daz_salsa_05`, `expmap_test_walking_extra_walking_13`).
 """
 from __future__ import annotations
 
@@ -73,11 +78,40 @@ def read_split(path: Path) -> list[str]:
             if line.strip() and not line.startswith("#")]
 
 
+def clip_name(take: str) -> str:
+    """A take's clip name, unique over the shared folder: its path without the suffix, '/' as '_'; a DeepMimic
+    clip keeps the name its importer gives (walk, run, ...), the one the shipped model's records use."""
+    if take.startswith("deepmimic/"):
+        return Path(take).stem.removeprefix("humanoid3d_")
+    return str(Path(take.removeprefix("cmu/")).with_suffix("")).replace("/", "_")
+
+
+def clip_file(take: str, clips: Path) -> Path:
+    """Where `lab/log.md` 63's import put a take's clip: its path under `clips`, less cmu/ (DeepMimic: by name)."""
+    if take.startswith("deepmimic/"):
+        return clips / "deepmimic" / f"{clip_name(take)}.npz"
+    return clips / Path(take.removeprefix("cmu/")).with_suffix(".npz")
+
+
+def materialise(takes: list[str], clips: Path, out: Path) -> int:
+    """Save the imported clip of each take into `out` under its unique name."""
+    from dataclasses import replace
+
+    from motions.clip import load_clip, save_clip
+
+    out.mkdir(parents=True, exist_ok=True)
+    for take in takes:
+        save_clip(replace(load_clip(clip_file(take, clips)), name=clip_name(take)), out / f"{clip_name(take)}.npz")
+    return len(takes)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mocap", type=Path, help="the shared motion capture folder")
     ap.add_argument("--heldout", type=Path, default=Path("lab/splits/heldout-tracking.txt"))
     ap.add_argument("--out", type=Path, default=Path("lab/splits/train-tracking.txt"))
+    ap.add_argument("--materialise", type=Path, help="write the clips of both lists into DIR/train and DIR/heldout")
+    ap.add_argument("--clips", type=Path, default=Path("data/clips/cmu-all"), help="the imported clips")
     args = ap.parse_args()
     heldout = read_split(args.heldout)
     missing = [h for h in heldout if not (args.mocap / h).is_file()]
@@ -106,6 +140,9 @@ def main() -> None:
     args.out.write_text("\n".join(lines) + "\n")
     print(f"{len(takes)} takes: {len(heldout)} held out, {len(excluded)} excluded as their twins, "
           f"{len(train)} to train on -> {args.out}")
+    if args.materialise is not None:
+        for part, listed in (("train", train), ("heldout", heldout)):
+            print(f"{materialise(listed, args.clips, args.materialise / part)} clips -> {args.materialise / part}")
 
 
 if __name__ == "__main__":

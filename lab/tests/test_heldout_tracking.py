@@ -28,8 +28,12 @@ def test_a_delayed_copy_is_found_at_its_delay_with_no_error_left():
     assert heldout_tracking.best_lag(ref, ref) == (0, 0.0)
 
 
-def test_takes_map_to_their_imported_clips():
+def test_takes_map_to_their_imported_clips_and_unique_names():
+    from tracking_split import clip_file, clip_name
+
     clips = Path("data/clips/cmu-all")
-    assert heldout_tracking.clip_path("cmu/bvh-daz/salsa/05.bvh", clips) == clips / "bvh-daz/salsa/05.npz"
-    assert heldout_tracking.clip_path("cmu/expmap/test/running/running_1.txt", clips) == \
-        clips / "expmap/test/running/running_1.npz"
+    assert clip_file("cmu/bvh-daz/salsa/05.bvh", clips) == clips / "bvh-daz/salsa/05.npz"
+    assert clip_file("cmu/expmap/test/running/running_1.txt", clips) == clips / "expmap/test/running/running_1.npz"
+    assert clip_file("deepmimic/motions/humanoid3d_walk.txt", clips) == clips / "deepmimic/walk.npz"
+    assert clip_name("cmu/bvh-daz/salsa/05.bvh") != clip_name("cmu/bvh-daz/indian/05.bvh")
+    assert clip_name("cmu/expmap/test/walking_extra/walking_13.txt") == "expmap_test_walking_extra_walking_13"
