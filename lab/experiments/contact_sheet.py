@@ -1,7 +1,8 @@
 """A contact sheet: frames of one model under several prompts, one row per prompt, for where a picture says more.
 
-Each row is one rollout from the default standing start (a tracking row starts from the clip's first frame),
-sampled every `--every` steps; each frame is labelled with its time and pelvis height.
+Each row is one rollout from the default standing start (a tracking row starts from the clip's first frame and
+shows the clip beside the body, labelled), sampled every `--every` steps; each frame is labelled with its time and
+pelvis height.
 
     python lab/experiments/contact_sheet.py pretrained --prompts reward:move-ego-0-0 reward:move-ego-0-2 goal:t_pose \\
         track:data/clips/deepmimic/walk.npz --out docs/img/pretrained_prompts.png
@@ -19,31 +20,30 @@ from PIL import Image, ImageDraw
 from fbcpr import BFM
 from fbcpr.cli.prompt_cmd import rollout
 from humanoid_env.model import CONTROL_HZ
+from motions.clip import Clip, load_clip
 
 TILE_W, TILE_H = 224, 168
 
 
-def prompt_zs(bfm: BFM, spec: str, steps: int) -> tuple[np.ndarray, tuple | None]:
+def prompt_zs(bfm: BFM, spec: str, steps: int) -> tuple[np.ndarray, tuple | None, Clip | None]:
     """`reward:NAME`, `goal:NAME`, `track:CLIP.npz` or `z:FILE.npy` -> (z per step, start state or None for the
-    default start).
+    default start, the clip shown beside the body for a tracking row).
 
     Every prompt is resolved before any rollout, so a typo in the last one fails in seconds, not after minutes of
     rendering the others."""
     kind, _, name = spec.partition(":")
     if kind == "track":
-        from motions.clip import load_clip
-
         clip = load_clip(name)
-        return bfm.prompt.track(clip)[:steps], (clip.qpos[0], clip.qvel[0])
+        return bfm.prompt.track(clip)[:steps], (clip.qpos[0], clip.qvel[0]), clip
     if kind == "z":
         z = np.load(name, allow_pickle=False)
         if z.shape != (bfm.z_dim,) or not np.all(np.isfinite(z)):
             raise SystemExit(f"--prompts: {name} must hold one finite z of shape ({bfm.z_dim},), got {z.shape}")
-        return np.repeat(bfm.project_z(z)[None], steps, 0), None
+        return np.repeat(bfm.project_z(z)[None], steps, 0), None, None
     if kind not in ("reward", "goal"):
         raise SystemExit(f"--prompts: {spec!r} must be reward:NAME, goal:NAME, track:CLIP.npz or z:FILE.npy")
     z = bfm.prompt.reward(name) if kind == "reward" else bfm.prompt.goal(name)
-    return np.repeat(z[None], steps, 0), None
+    return np.repeat(z[None], steps, 0), None, None
 
 
 def main() -> None:
@@ -57,13 +57,15 @@ def main() -> None:
     bfm = BFM.load(args.checkpoint)
     rows = []
     prompts = {spec: prompt_zs(bfm, spec, args.steps) for spec in args.prompts}
-    for spec, (zs, start) in prompts.items():
-        ep = rollout(bfm, zs, start=start, video=True, label=spec)
+    for spec, (zs, start, clip) in prompts.items():
+        ep = rollout(bfm, zs, start=start, video=True, reference=clip, label=spec)
         picks = range(0, len(ep.frames), args.every)
         tiles = []
+        width = TILE_W if clip is None else 2 * TILE_W  # a tracking tile: the body left, the clip right
         for t in picks:
-            tile = Image.fromarray(ep.frames[t]).resize((TILE_W, TILE_H))
-            ImageDraw.Draw(tile).text((4, 4), f"{t / CONTROL_HZ:.1f} s  pelvis {ep.obs[t][0]:.2f} m", fill=(255, 255, 0))
+            tile = Image.fromarray(ep.frames[t]).resize((width, TILE_H))
+            label = f"{t / CONTROL_HZ:.1f} s  pelvis {ep.obs[t][0]:.2f} m"
+            ImageDraw.Draw(tile).text((4, 4), label, fill=(255, 255, 0))
             tiles.append(tile)
         row = Image.new("RGB", (sum(t.width for t in tiles), tiles[0].height + 18), (20, 20, 20))
         ImageDraw.Draw(row).text((4, 2), spec, fill=(255, 255, 255))

@@ -20,7 +20,7 @@ from humanoid_env.model import BODY_NAMES, JOINT_NAMES, joint_ranges, load_model
 from motions.kinematics import resample_qpos
 from motions.limits import MIN_FRAME_SECONDS, check_frame_times, max_clip_seconds
 from motions.npz import read_npz
-from motions.retarget import RetargetReport, floor_metrics, foot_slide, ground_shift
+from motions.retarget import RetargetReport, floor_metrics, foot_slide, ground_shift, limit_hits
 
 #: SMPL joint index for each of our non-root bodies, in BODY_NAMES[1:] order.
 SMPL_INDEX = {
@@ -120,25 +120,29 @@ def foot_contacts(model, qpos: np.ndarray, fps: float) -> np.ndarray:
     return (low - low.min() < CONTACT_HEIGHT) & (vz < CONTACT_SPEED)
 
 
-def import_amass(path: str | Path, fps: float = 30.0, up_axis: str = "z") -> tuple[np.ndarray, RetargetReport, dict]:
-    """(qpos at `fps`, report, provenance) for one AMASS/SMPL file."""
+def import_amass(path: str | Path, fps: float = 30.0, up_axis: str = "z",
+                 source_fps: float | None = None) -> tuple[np.ndarray, RetargetReport, dict]:
+    """(qpos at `fps`, report, provenance) for one AMASS/SMPL file; `source_fps` overrides its mocap_framerate."""
     import time
 
     path = Path(path)
     start = time.perf_counter()
     poses, trans, src_fps = read_amass(path)
+    src_fps = source_fps or src_fps
     qpos = resample_qpos(smpl_to_qpos(poses, trans, up_axis), src_fps, fps)
     model = load_model()
     lo, hi = joint_ranges(model).T
     over = (qpos[:, 7:] < lo - 1e-4) | (qpos[:, 7:] > hi + 1e-4)
     clipped = {JOINT_NAMES[j]: int(c) for j, c in enumerate(over.sum(axis=0)) if c}
     qpos[:, 7:] = np.clip(qpos[:, 7:], lo, hi)
+    at_limits = limit_hits(qpos, lo, hi)
     contacts = foot_contacts(model, qpos, fps)
     qpos[:, 2] += ground_shift(model, qpos, contacts)
     penetration, gap = floor_metrics(model, qpos, contacts)
     report = RetargetReport(
         name=path.stem, frames=qpos.shape[0], seconds=qpos.shape[0] / fps, compute_seconds=time.perf_counter() - start,
         clipped=clipped, max_penetration=penetration, max_contact_gap=gap, contacts=contacts,
-        foot_slide=foot_slide(model, qpos, contacts, fps),
+        foot_slide=foot_slide(model, qpos, contacts, fps), contact_share=float(contacts.any(axis=1).mean()),
+        at_limits=at_limits,
     )
     return qpos, report, {"source": f"AMASS/SMPL {path.name}", "license": "see the AMASS license of the source dataset"}
