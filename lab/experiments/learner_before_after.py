@@ -40,9 +40,9 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     sys.path.insert(0, str(Path(args.tree) / "benchmarks"))
-    import fbcpr
-    from update_speed import OBS, ACT, draw
+    from update_speed import ACT, OBS, draw
 
+    import fbcpr
     from fbcpr.core.config import config_from_dict
     from fbcpr.methods.fb_cpr.agent import FBCPRAgent
     assert Path(fbcpr.__file__).resolve().is_relative_to(Path(args.tree).resolve()), fbcpr.__file__
