@@ -247,7 +247,9 @@ class FBCPRAgent:
         if not self.bf16:
             return None
         if self._bf16 is None:
-            self._bf16 = BF16Weights([self.model, self.targets])
+            model, tg = self.model, self.targets  # B runs in float32 (`fbcpr.nn.networks.BackwardNet`)
+            self._bf16 = BF16Weights([model.forward_map, model.actor, model.critic, model.discriminator,
+                                      tg["forward_map"], tg["critic"]])
         self._bf16.refresh()
         return self._bf16
 
