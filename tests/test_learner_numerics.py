@@ -102,3 +102,15 @@ def test_bf16_weight_copies_give_autocasts_gradients_with_fewer_casts():
     casts = count_update_ops(copies, batch, windows).ops["aten._to_copy.default"]
     assert casts < count_update_ops(auto, batch, windows).ops["aten._to_copy.default"] / 2
     assert all(p.dtype == torch.float32 for p in copies.model.parameters())  # the masters stay float32
+
+
+def test_backward_map_runs_in_float32_under_bf16_autocast():
+    """Sigma_B's solve amplifies B's rounding, so B ignores autocast."""
+    agent = make_agent()
+    obs = torch.randn(16, 6)
+    plain = agent.model.backward_map(obs)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        under = agent.model.backward_map(obs)
+        assert agent.model.forward_map(obs, torch.zeros(16, 3), plain).dtype == torch.bfloat16  # autocast is on
+    assert under.dtype == torch.float32
+    torch.testing.assert_close(under, plain)
