@@ -114,3 +114,14 @@ def test_backward_map_runs_in_float32_under_bf16_autocast():
         assert agent.model.forward_map(obs, torch.zeros(16, 3), plain).dtype == torch.bfloat16  # autocast is on
     assert under.dtype == torch.float32
     torch.testing.assert_close(under, plain)
+
+
+def test_two_member_pessimism_equals_the_pairwise_formula():
+    from fbcpr.nn.ensemble_td import pessimistic
+
+    v = torch.randn(2, 64, requires_grad=True)
+    for coef in (0.25, 0.5, 1.0):
+        ref = v.mean(0) - coef * (v.unsqueeze(0) - v.unsqueeze(1)).abs().sum((0, 1)) / 2
+        got = pessimistic(v, coef)
+        torch.testing.assert_close(got, ref)
+        torch.testing.assert_close(torch.autograd.grad(got.sum(), v)[0], torch.autograd.grad(ref.sum(), v)[0])
