@@ -10,8 +10,8 @@ Prints one line per check and ends with `SELFTEST ok` or `SELFTEST FAILED: ...` 
   (the device's own nondeterminism). A third pair, an eager agent whose Adam is capturable like the graph's,
   against a graphed one, tells the capture's own difference from the optimiser's: the graph fails the test only
   when it departs from that twin too (a graph replaying stale inputs or the same random draws departs by far more
-  within a few updates). The optimisers are fused, so eager and capturable Adam both keep their step counters on
-  the device and round their bias corrections alike.
+  within a few updates). The optimisers are fused, and a fused Adam keeps its step counters on the device whether
+  capturable or not, so the eager and graphed updates should now round their bias corrections alike.
 - bf16 (per size): one update's gradients on the same batch, weights and random draws in float32 and in bf16
   (`bf16_agreement.gradients`); every optimised network's cosine must reach MIN_COSINE. Then two twins, float32
   and bf16, trained on the same batches: how far their weights drift apart, as a fraction of how far float32's
