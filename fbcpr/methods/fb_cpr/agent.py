@@ -32,10 +32,10 @@ from fbcpr.methods.fb_cpr.config import AgentConfig
 from fbcpr.methods.fb_cpr.imitation import discriminator_terms, encode_windows
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 from fbcpr.nn import distributed
-from fbcpr.nn.cuda_graph import GraphedStep, make_capturable
+from fbcpr.nn.cuda_graph import GraphedStep
 from fbcpr.nn.lazy_metrics import LazyMetrics
 from fbcpr.nn.networks import project_sphere
-from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
+from fbcpr.nn.optim_state import fused_adam, load_optimizer_state, optimizer_state
 from fbcpr.nn.precision import resolve_bf16
 from fbcpr.rewards.near.conditional import ConditionalEnergy
 
@@ -88,9 +88,7 @@ class FBCPRAgent:
             trained["energy"] = (self.energy.energy, agent_cfg.near.lr)
         # a captured update steps Adam on the device (`fbcpr.nn.cuda_graph`)
         self.graphed = agent_cfg.cuda_graph and self.device.type == "cuda"
-        self.optimizers = {k: torch.optim.Adam(m.parameters(), lr=lr, betas=(0.9, 0.999), eps=1e-8,
-                                               capturable=self.graphed)
-                           for k, (m, lr) in trained.items()}
+        self.optimizers = {k: fused_adam(m.parameters(), lr, capturable=self.graphed) for k, (m, lr) in trained.items()}
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(seed)
         self.num_updates = 0
@@ -375,8 +373,6 @@ class FBCPRAgent:
         try:
             for name, opt in self.optimizers.items():
                 load_optimizer_state(opt, f"optim.{name}", meta["optimizers"][name], tensors)
-                if self.graphed:
-                    make_capturable(opt)
             self.generator.set_state(tensors["agent_generator"])
             self.num_updates = int(meta["num_updates"])
         except (KeyError, ValueError, RuntimeError) as e:
