@@ -3,12 +3,12 @@ update-to-data ratio exactly as the sync loop does, checkpoints and resumes; con
 import numpy as np
 import pytest
 import torch
+from conftest import toy_run_config
 
 from fbcpr.core.checkpoint import load_checkpoint
 from fbcpr.core.errors import ConfigError
 from fbcpr.train.trainer import Trainer
 from fbcpr.train.workers import CollectorPool
-from conftest import toy_run_config
 
 torch.set_num_threads(1)
 

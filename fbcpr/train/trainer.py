@@ -1,7 +1,9 @@
-"""Online training loop of every method (Algorithm 1 with the protocol of App. C.5.1 for FB-CPR).
+"""Online training loop of every method (Algorithm 1 with the protocol of App. C.5.1 for FB-CPR): the run's bookkeeping.
 
-Each iteration collects `rollout_steps` transitions from `num_envs` parallel envs (random actions during warm-up, then
-the policy with z ~ nu resampled every `z_update_every` steps), then runs `updates_per_rollout` gradient steps. The
+Each iteration has the collector (`fbcpr.train.collector`, or with `train.engine: async` the collector processes of
+`fbcpr.train.workers`) add `rollout_steps` transitions from `num_envs` parallel envs (random actions during warm-up,
+then the policy with z ~ nu resampled every `z_update_every` steps), then has the learner (`fbcpr.train.learner`) run
+`updates_per_rollout` gradient steps. The trainer keeps the schedule, evaluations, checkpoints and logs. The
 agent is the config's `algorithm` (`fbcpr.core.registry`), driven through `fbcpr.core.protocols.OnlineAgent`; z is its
 rollout latent (empty for single-task agents). Every `priority_every` env steps the policy tracks the clips and the
 motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the model, the exact
