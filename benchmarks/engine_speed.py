@@ -52,7 +52,7 @@ def engine_config(args: argparse.Namespace, engine: str, collectors: int, update
                   "total_env_steps": warmup + steps, "warmup_steps": warmup, "rollout_steps": args.rollout,
                   "updates_per_rollout": updates, "buffer_capacity": max(warmup + steps, BATCH[args.preset]),
                   "device_buffer": cuda, "priority_every": 0, "eval_every": 0, "checkpoint_every": 0,
-                  "log_every": 5 * args.rollout, "reward_buffer_size": 0, "save_buffer": False, "seed": 0,
+                  "log_every": args.rollout, "reward_buffer_size": 0, "save_buffer": False, "seed": 0,
                   "torch_threads": args.threads, "env_threads": args.env_threads if engine == "sync" else 0},
     })
 
@@ -140,9 +140,12 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--preset", default=None, help="network size (default: small on cpu, paper-S on cuda)")
     p.add_argument("--collectors", type=int, default=None, help="async collectors (default: cores - 1, at least 1)")
     p.add_argument("--envs", type=int, default=None, help="envs in all (default: 16, or 8 per collector on cuda)")
-    p.add_argument("--warmup", type=int, default=None, help="random warm-up env steps")
-    p.add_argument("--steps", type=int, default=None, help="env steps measured after the warm-up")
-    p.add_argument("--rollout", type=int, default=160, help="env steps per rollout phase (updates: a tenth)")
+    p.add_argument("--warmup", type=int, default=None, help="random warm-up env steps (default: two phases, at "
+                   "least a batch)")
+    p.add_argument("--steps", type=int, default=None, help="env steps measured after the warm-up (default: 10 "
+                   "phases, --quick; else 40; --scaling: 4 times as many)")
+    p.add_argument("--rollout", type=int, default=None, help="env steps per rollout phase, updates a tenth "
+                   "(default: 10 vector steps of the envs)")
     p.add_argument("--threads", type=int, default=1, help="torch threads of the learner")
     p.add_argument("--env-threads", type=int, default=0, help="MuJoCo threads of the sync loop (0: all cores)")
     args: Any = p.parse_args(argv)
@@ -150,8 +153,9 @@ def main(argv: list[str] | None = None) -> None:
     args.preset = args.preset or ("paper-S" if args.device == "cuda" else "small")
     args.collectors = args.collectors or (2 if args.scaling else max(1, cores - 1))
     args.envs = args.envs or (8 * args.collectors if args.device == "cuda" else 16)
-    args.warmup = args.warmup if args.warmup is not None else (1_600 if args.quick else 8_000)
-    args.steps = args.steps or (1_600 if args.quick else 8_000) * (4 if args.scaling else 1)
+    args.rollout = args.rollout or 10 * args.envs
+    args.warmup = args.warmup if args.warmup is not None else max(2 * args.rollout, BATCH[args.preset])
+    args.steps = args.steps or (10 if args.quick else 40) * args.rollout * (4 if args.scaling else 1)
     if args.device == "cuda" and not torch.cuda.is_available():
         raise SystemExit("--device cuda: CUDA is not available")
     torch.set_num_threads(args.threads)

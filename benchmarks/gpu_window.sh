@@ -114,6 +114,7 @@ if [ -e "$RUN/checkpoints/latest" ]; then
   say "continuing: $RUN holds the last window's run, resumed exactly (--resume)"
   args+=(--resume)
 elif compgen -G "$RUN.pack/*.tar.part*" > /dev/null; then
+  rm -rf "$RUN.init"
   init=$("$PY" lab/gpu/pack.py unpack "$RUN.pack" "$RUN.init" | tail -1)
   say "continuing: the last window's run is gone, its pack is here: a new run from its weights ($init)"
   args+=(--init-from "$("$PY" -c "import sys; from pathlib import Path; print(sorted(Path(sys.argv[1]).glob('step_*'))[-1])" "$RUN.init")")

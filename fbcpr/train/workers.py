@@ -88,8 +88,9 @@ class CollectorPool:
     def _start(self) -> None:
         tc = self.cfg.train
         self.sync_policy()
-        # the workers act on the CPU in float32, whatever the learner's device and precision
-        agent_cfg = replace(self.cfg.agent, **{k: False for k in ("bf16", "cuda_graph") if hasattr(self.cfg.agent, k)})
+        # the workers act on the CPU in float32, eagerly, whatever the learner's device, precision and compilation
+        agent_cfg = replace(self.cfg.agent, **{k: False for k in ("bf16", "cuda_graph", "compile")
+                                               if hasattr(self.cfg.agent, k)})
         cfg = replace(self.cfg, agent=agent_cfg, train=replace(tc, device="cpu", device_buffer=False))
         threads = collector_threads(self.cfg, self.cores)
         for i, ring in enumerate(self.rings):
