@@ -1,5 +1,12 @@
 """The training engines: the async one (collectors in worker processes) trains end to end, keeps the config's
 update-to-data ratio exactly as the sync loop does, checkpoints and resumes; configs it cannot run fail early."""
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -7,6 +14,7 @@ from conftest import toy_run_config
 
 from fbcpr.core.checkpoint import load_checkpoint
 from fbcpr.core.errors import ConfigError
+from fbcpr.core.schema import dump_config
 from fbcpr.train.trainer import Trainer
 from fbcpr.train.workers import CollectorPool
 
@@ -53,3 +61,32 @@ def test_async_engine_refuses_what_it_cannot_run(tmp_path):
         Trainer(toy_run_config(train={"engine": "async", "collectors": 3}), tmp_path / "a", progress=False)
     with pytest.raises(ConfigError, match="train.engine"):
         toy_run_config(train={"engine": "threads"})
+
+
+def test_a_stop_signal_to_the_whole_process_group_ends_an_async_run_with_a_checkpoint(tmp_path):
+    """Ctrl-C or `timeout` signal every process of the group: the collectors leave it to the trainer, which stops
+    at its next safe point with a final checkpoint, then stops them."""
+    cfg = toy_run_config(train={"engine": "async", "collectors": 2, "total_env_steps": 10**7})
+    (tmp_path / "cfg.yaml").write_text(dump_config(cfg))
+    run = tmp_path / "run"
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.Popen([sys.executable, "-m", "fbcpr", "train", str(tmp_path / "cfg.yaml"), "--out", str(run),
+                             "--no-progress"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 180
+        while not ((run / "metrics.csv").exists() and "updates" in (run / "metrics.csv").read_text()):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.5)
+        os.killpg(proc.pid, signal.SIGTERM)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "stopping" in err and "interrupted at" in out, out + err
+    latest = run / "checkpoints" / (run / "checkpoints" / "latest").read_text().strip()
+    meta = load_checkpoint(latest).trainer_state()[1]
+    assert meta["env_steps"] >= 40 and meta["updates"] > 0

@@ -70,7 +70,7 @@ from fbcpr.train.learner import Learner
 from fbcpr.train.reporting import progress_columns, summary_writer
 from fbcpr.train.resources import check_memory
 from fbcpr.train.schedule import check_world_size, phase_steps, rescheduled
-from fbcpr.train.workers import CollectorPool
+from fbcpr.train.workers import STOP_SIGNALS, CollectorPool
 
 LIVE_KEYS = ("fb_loss", "actor_loss", "critic_loss", "disc_loss", "reward")
 #: Failure signatures reported by public FB-CPR users, checked at every log row: (name, test, message).
@@ -86,8 +86,6 @@ WARNINGS: tuple[tuple[str, Callable[[dict[str, float]], bool], str], ...] = (
 )
 
 
-#: Signals that end a run at the next safe point with a checkpoint: Ctrl-C, `kill`, and the terminal going away.
-STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 def resolve_device(name: str) -> torch.device:

@@ -17,7 +17,9 @@ reproducible bit for bit (which weights a step acts with depends on timing).
 """
 from __future__ import annotations
 
+import os
 import queue
+import signal
 from dataclasses import replace
 from typing import Any
 
@@ -39,6 +41,9 @@ from fbcpr.train.schedule import phase_steps
 ONLINE_ROWS = 10_000
 #: seconds between checks that a collector is still alive while waiting for its next slot
 POLL_S = 1.0
+#: Signals that end a run at the next safe point with a checkpoint: Ctrl-C, `kill`, and the terminal going away. The
+#: trainer handles them; the collectors ignore them.
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 class CollectorError(FBCPRError, RuntimeError):
@@ -170,7 +175,12 @@ class CollectorPool:
 def collect(cfg: Config, n: int, seed: int, threads: int, random_steps: int, ring: dict[str, torch.Tensor],
             weights: dict[str, torch.Tensor], priorities: torch.Tensor, version: Any, lock: Any, free: Any,
             filled: Any, stop: Any) -> None:
-    """A collector process: steps n envs, one ring slot per vector step, until `stop` is set."""
+    """A collector process: steps n envs, one ring slot per vector step, until `stop` is set or the trainer's
+    process is gone. Stop signals are the trainer's to handle (a Ctrl-C or `timeout` reaches the whole process
+    group): the trainer stops at its next safe point with a checkpoint, then sets `stop`."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+    parent = os.getppid()
     torch.set_num_threads(1)
     tc = cfg.train
     bundle = make_env(cfg.env, n, seed, threads)
@@ -186,7 +196,7 @@ def collect(cfg: Config, n: int, seed: int, threads: int, random_steps: int, rin
     z = torch.zeros((n, agent.z_dim))
     z_age = np.full(n, tc.z_update_every, dtype=np.int64)
     steps = 0
-    while not stop.is_set():
+    while not stop.is_set() and os.getppid() == parent:
         try:
             slot = free.get(timeout=0.2)
         except queue.Empty:
