@@ -7,9 +7,8 @@
 #
 # Steps, each logged to $OUT/window.txt:
 #   1. setup     lab/gpu/device_train.sh's offline install of the wheels in .whl (lab/gpu/build_carry.sh builds them)
-#   2. self-test the graphed update equals the eager one after a few updates on the same batches, and bf16 agrees
-#                with float32 (fbcpr.nn.selftest where the checkout has it, else the graph agreement of
-#                benchmarks/update_speed.py); a failure stops the window with a `SELFTEST FAILED` line
+#   2. self-test benchmarks/learner_selftest.py: the graphed update equals the eager one after a few updates on
+#                the same batches, and bf16 agrees with float32; a failure stops the window (`SELFTEST FAILED`)
 #   3. engine    benchmarks/engine_speed.py --quick on the window's device: its RESULT line
 #   4. train     CONFIG for the seconds left, then SIGTERM (a final checkpoint). A window continues the last one
 #                on this machine: RUN's checkpoints with --resume, else the pack of the last window (RUN.pack,
@@ -38,8 +37,8 @@ if [ "$DRY" = 1 ]; then
   DEVICE=cpu
   PY=${PY:-python3}
   CONFIG=${CONFIG:-$RUN.dry.yaml}
-  PRESET=tiny
   BENCH=(--device cpu --preset tiny --envs 4 --collectors 1 --warmup 160 --steps 320 --rollout 40)
+  SELFTEST=(--sizes tiny --updates 4)
   PACK_TAIL=30  # seconds kept for the pack at the end
   BENCH_SHARE=2  # the benchmark's share of what is left: a half here (its processes start slowly on a busy CPU)
   # the window's config at tiny sizes: the humanoid on the synthetic clips, a short warm-up, frequent checkpoints
@@ -61,6 +60,10 @@ else
   CONFIG=${CONFIG:-fbcpr/configs/gpu-paper-S.yaml}
   PRESET=$("${PY:-python3}" -c "import sys, yaml; print(yaml.safe_load(open(sys.argv[1]))['model']['preset'])" "$CONFIG")
   BENCH=(--device cuda --quick --preset "$PRESET")
+  SELFTEST=(--sizes small --updates 12)
+  if [ "$PRESET" != small ]; then
+    SELFTEST=(--sizes small "$PRESET" --updates 12)
+  fi
   PACK_TAIL=60
   BENCH_SHARE=3
   say "gpu_window: $CONFIG on cuda, $WINDOW_S s"
@@ -70,27 +73,8 @@ else
 fi
 say "setup done at $((SECONDS - start)) s"
 
-# 2. self-test
-if ! "$PY" - "$DEVICE" "$PRESET" >> "$LOG" 2>&1 << 'EOF'
-import importlib.util
-import sys
-
-device, preset = sys.argv[1], sys.argv[2]
-if importlib.util.find_spec("fbcpr.nn.selftest") is not None:  # the learner's own check: graph and bf16
-    from fbcpr.nn import selftest
-
-    ok, line = selftest.run(device=device, preset=preset)
-else:  # the graph agreement of benchmarks/update_speed.py at the window's size (bf16 is not checked)
-    sys.path.insert(0, "benchmarks")
-    from update_speed import graph_agreement
-
-    line = graph_agreement(preset, device=device, updates=4)
-    ok = "; agree;" in line and "NOT captured" not in line
-    line += " (bf16 not checked: fbcpr.nn.selftest is not in this checkout)"
-print(("SELFTEST ok: " if ok else "SELFTEST FAILED: ") + line, flush=True)
-sys.exit(0 if ok else 1)
-EOF
-then
+# 2. self-test: the graphed update against the eager one, and bf16 against float32 (benchmarks/learner_selftest.py)
+if ! "$PY" benchmarks/learner_selftest.py --device "$DEVICE" "${SELFTEST[@]}" >> "$LOG" 2>&1; then
   grep "^SELFTEST" "$LOG" | tail -1 || say "SELFTEST FAILED: the self-test crashed (see above)"
   say "gpu_window: stopped at the self-test, $((SECONDS - start)) s"
   exit 2

@@ -7,7 +7,9 @@ the same run: square float32 matmuls of the same total FLOPs (counted with torch
 update), i.e. what the update would cost if all its math ran at dense float32 GEMM speed, and a
 straightforward implementation of the same losses (one network at a time, no shared passes). `--bf16` adds
 rows for the optional bf16 autocast switch (`agent.bf16`; float32 master weights and optimiser); `--near` rows for
-the NEAR regulariser (`agent.regulariser: near`, its default 3 x 512 energy) in the discriminator's place.
+the NEAR regulariser (`agent.regulariser: near`, its default 3 x 512 energy) in the discriminator's place. The last
+column counts the kernels of one eager update: the non-view aten operators of its forward and backward passes and its
+optimiser steps (`fbcpr.nn.kernel_count`).
 `--graph` adds GPU rows for the update captured in a CUDA graph (`agent.cuda_graph`), and first checks, per size,
 that the graphed update trains as the eager one does: twins from the same seed, fed the same batches, with
 exploration actions drawn between updates, are compared after every update.
@@ -24,6 +26,7 @@ from fbcpr.core.config import config_from_dict
 from fbcpr.methods.fb_cpr import losses
 from fbcpr.methods.fb_cpr.agent import FBCPRAgent
 from fbcpr.nn.cuda_graph import make_capturable
+from fbcpr.nn.kernel_count import count_update_kernels
 from fbcpr.nn.networks import project_sphere
 
 SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}
@@ -233,7 +236,7 @@ def main() -> None:
     gpu_name = f", {torch.cuda.get_device_name()}" if "cuda" in devices else ""
     print(f"torch {torch.__version__}, {args.threads} CPU threads{gpu_name}")
     print(f"{'size':8s} {'device':14s} {'batch':>5s} {'GFLOP':>7s} {'ms/update':>10s} {'matmul ref ms':>14s} "
-          f"{'ratio':>6s} {'straightforward ms':>19s}")
+          f"{'ratio':>6s} {'straightforward ms':>19s} {'kernels':>8s}")
     if args.graph and "cuda" in devices:
         for preset in args.sizes:
             print("agreement", graph_agreement(preset), flush=True)
@@ -251,11 +254,13 @@ def main() -> None:
                 variants += [(bf16, False, "discriminator", True) for bf16, _, _ in eager]
             for bf16, compile_, regulariser, graph in variants:
                 agent, batch, windows = make(preset, dev, compile_, bf16, regulariser, graph)
+                # the eager update's (a compiled one runs eagerly under the counter; a graph replays the eager one's)
+                kernels = "-" if compile_ else str(count_update_kernels(*make(preset, dev, False, bf16, regulariser)))
                 t = time_update(agent, batch, windows, dev, reps)
                 name = (dev + ("+bf16" if bf16 else "") + ("+near" if regulariser == "near" else "")
                         + ("+comp" if compile_ else "") + ("+graph" if graph else ""))
                 print(f"{preset:8s} {name:14s} {SIZES[preset]:5d} {flops / 1e9:7.1f} {t * 1e3:10.1f} {ref * 1e3:14.1f} "
-                      f"{t / ref:6.2f} {naive:19.1f}", flush=True)
+                      f"{t / ref:6.2f} {naive:19.1f} {kernels:>8s}", flush=True)
 
 
 if __name__ == "__main__":

@@ -86,3 +86,42 @@ def test_a_state_saved_by_the_reference_adam_resumes_fused():
 
 def p_old(agent, name: str) -> torch.Tensor:
     return agent.optimizers[name].param_groups[0]["params"][0]
+
+
+def test_bf16_weight_copies_give_autocasts_gradients_with_fewer_casts():
+    """The bf16 copies refreshed once per step compute what bf16 autocast alone computed, casting far less."""
+    copies, auto = make_agent(bf16=True), make_agent(bf16=True)
+    auto._bf16_copies = lambda: None  # autocast casting each weight where it is used, as before the copies
+    batch, windows = make_batch(copies)
+    copies.backward(batch, windows)
+    auto.backward(batch, windows)
+    for name, opt in copies.optimizers.items():
+        for p, q in zip(opt.param_groups[0]["params"], auto.optimizers[name].param_groups[0]["params"]):
+            assert p.grad is not None and p.grad.dtype == torch.float32
+            torch.testing.assert_close(p.grad, q.grad, rtol=1e-2, atol=1e-4)
+    casts = count_update_ops(copies, batch, windows).ops["aten._to_copy.default"]
+    assert casts < count_update_ops(auto, batch, windows).ops["aten._to_copy.default"] / 2
+    assert all(p.dtype == torch.float32 for p in copies.model.parameters())  # the masters stay float32
+
+
+def test_backward_map_runs_in_float32_under_bf16_autocast():
+    """Sigma_B's solve amplifies B's rounding, so B ignores autocast."""
+    agent = make_agent()
+    obs = torch.randn(16, 6)
+    plain = agent.model.backward_map(obs)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        under = agent.model.backward_map(obs)
+        assert agent.model.forward_map(obs, torch.zeros(16, 3), plain).dtype == torch.bfloat16  # autocast is on
+    assert under.dtype == torch.float32
+    torch.testing.assert_close(under, plain)
+
+
+def test_two_member_pessimism_equals_the_pairwise_formula():
+    from fbcpr.nn.ensemble_td import pessimistic
+
+    v = torch.randn(2, 64, requires_grad=True)
+    for coef in (0.25, 0.5, 1.0):
+        ref = v.mean(0) - coef * (v.unsqueeze(0) - v.unsqueeze(1)).abs().sum((0, 1)) / 2
+        got = pessimistic(v, coef)
+        torch.testing.assert_close(got, ref)
+        torch.testing.assert_close(torch.autograd.grad(got.sum(), v)[0], torch.autograd.grad(ref.sum(), v)[0])

@@ -4,6 +4,7 @@ Shapes: m = ensemble size, n = batch size. `discount` is the per-sample gamma * 
 """
 from __future__ import annotations
 
+import torch
 from torch import Tensor
 
 
@@ -16,6 +17,8 @@ def pessimistic(values: Tensor, coef: float) -> Tensor:
     mean = values.mean(0)
     if coef == 0.0 or m == 1:
         return mean
+    if m == 2:  # the paper's ensembles: the mean pairwise |difference| is |v_0 - v_1|, in 3 kernels instead of 6
+        return torch.sub(mean, (values[0] - values[1]).abs(), alpha=coef)
     spread = (values.unsqueeze(0) - values.unsqueeze(1)).abs().sum((0, 1)) / (m * (m - 1))
     return mean - coef * spread
 

@@ -157,7 +157,11 @@ class _Head(nn.Module):
 
 
 class BackwardNet(nn.Module):
-    """B(s) (Table 5, state embeddings): a simple MLP, output l2-normalised and scaled to sqrt(d)."""
+    """B(s) (Table 5, state embeddings): a simple MLP, output l2-normalised and scaled to sqrt(d).
+
+    B always runs in float32, bf16 autocast or not: the implicit reward solves with Sigma_B = E[B B^T], which is
+    ill-conditioned early in training, and B's bf16 rounding then moved FB-CPR's Fz loss by 22% at paper-S. B is
+    the smallest network, so float32 costs little."""
 
     def __init__(self, obs_dim: int, z_dim: int, hidden: int, hidden_layers: int) -> None:
         super().__init__()
@@ -165,7 +169,8 @@ class BackwardNet(nn.Module):
         self.net = Stack([obs_dim] + [hidden] * hidden_layers + [z_dim], 1, final=None)
 
     def forward(self, obs: Tensor) -> Tensor:
-        return project_sphere(self.net(obs)[0])
+        with torch.autocast(obs.device.type, enabled=False):
+            return project_sphere(self.net(obs.float())[0])
 
 
 class Discriminator(nn.Module):

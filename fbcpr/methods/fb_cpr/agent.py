@@ -15,6 +15,7 @@ On CUDA, `agent.cuda_graph` captures the whole step (`_train_step`) in one CUDA 
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 from collections.abc import Callable
 from typing import Any
@@ -32,6 +33,7 @@ from fbcpr.methods.fb_cpr.config import AgentConfig
 from fbcpr.methods.fb_cpr.imitation import discriminator_terms, encode_windows
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 from fbcpr.nn import distributed
+from fbcpr.nn.bf16_weights import BF16Weights
 from fbcpr.nn.cuda_graph import GraphedStep
 from fbcpr.nn.lazy_metrics import LazyMetrics
 from fbcpr.nn.networks import project_sphere
@@ -79,6 +81,7 @@ class FBCPRAgent:
         self.free = None if free is None else torch.as_tensor(free, dtype=torch.bool, device=self.device)
         self.window_clips = self.free is not None  # the trainer then marks each window's clip ("window_clip")
         self.notices: list[str] = []  # lines the trainer shows once at the start
+        self._bf16: BF16Weights | None = None  # the bf16 weight copies of `agent.bf16` (`_bf16_copies`)
         # the NEAR regulariser, which replaces the discriminator's training
         self.energy: ConditionalEnergy | None = None
         if agent_cfg.regulariser == "near":
@@ -223,16 +226,32 @@ class FBCPRAgent:
             self.model.obs_normalizer.update(torch.cat([obs, expert_flat]))
         if self.energy is not None:
             self.energy.step_normalizer.update(expert[:, 1:] - expert[:, :-1])
-        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
+        copies = self._bf16_copies()
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16), \
+                copies.swapped() if copies is not None else contextlib.nullcontext():
             out = self._compute(*(inputs[k] for k in ("obs", "action", "next_obs", "z", "terminated", "expert",
                                                       "expert_held")))
         total = out.pop("_total")
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
         total.backward()
+        if copies is not None:
+            copies.gradients_to_masters()
         if self.energy is not None:
             torch.nn.utils.clip_grad_norm_(self.energy.energy.parameters(), self.cfg.near.grad_clip)
         return out
+
+    def _bf16_copies(self) -> BF16Weights | None:
+        """Under `agent.bf16`, the ensemble layers' bf16 weight copies, refreshed for this step (made on first use:
+        benchmarks/bf16_agreement.py switches `bf16` on an agent it built)."""
+        if not self.bf16:
+            return None
+        if self._bf16 is None:
+            model, tg = self.model, self.targets  # B runs in float32 (`fbcpr.nn.networks.BackwardNet`)
+            self._bf16 = BF16Weights([model.forward_map, model.actor, model.critic, model.discriminator,
+                                      tg["forward_map"], tg["critic"]])
+        self._bf16.refresh()
+        return self._bf16
 
     def _losses(self, obs: Tensor, action: Tensor, next_obs: Tensor, z_buf: Tensor, terminated: Tensor,
                 expert: Tensor, expert_held: Tensor | None = None) -> dict[str, Tensor]:
