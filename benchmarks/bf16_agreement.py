@@ -72,7 +72,7 @@ def main() -> None:
         trainer = Trainer(cfg, out, init_from=args.init_from)  # its progress bar goes to stderr
         trainer.run()  # fills the replay buffer with the loaded policy's rollouts; no update before warm-up ends
         agent = trainer.agent
-        draws = [trainer.sample_batch() for _ in range(args.batches + 1)]  # as training draws them
+        draws = [trainer.learner.sample_batch() for _ in range(args.batches + 1)]  # as training draws them
         collected = len(trainer.buffer)
         trainer.close()
     fp32 = [gradients(agent, b, w, bf16=False) for b, w in draws]

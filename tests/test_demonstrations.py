@@ -131,7 +131,7 @@ def test_demonstrations_held_apart_fill_a_share_of_every_batch(tmp_path, two_cli
     try:
         assert len(tr.buffer) == 0  # not in the FIFO, where the env's transitions would overwrite them
         tr.run(max_env_steps=8)
-        batch, _ = tr.sample_batch()
+        batch, _ = tr.learner.sample_batch()
         assert batch["demo"].tolist() == [True, True] + [False] * 6
         for row in range(2):  # each marked row is one of the demonstration's transitions, fields aligned
             (step,) = np.flatnonzero(np.isclose(planned.clip.obs[:-1], batch["obs"][row].numpy(), rtol=1e-6).all(axis=1))
@@ -166,7 +166,7 @@ def test_behaviour_cloning_pulls_the_policy_to_the_demonstrated_actions(tmp_path
             error = lambda: (model.actor_mean(model.normalize(obs)) - torch.as_tensor(planned.actions)).square().mean()  # noqa: E731
             before = error().item()
             for _ in range(150):
-                metrics = tr.agent.update(*tr.sample_batch())
+                metrics = tr.agent.update(*tr.learner.sample_batch())
             errors[weight] = error().item() / before
             assert ("bc_loss" in metrics) == (weight > 0)
         finally:
@@ -186,7 +186,7 @@ def test_demonstration_rows_can_bootstrap_on_the_demonstrators_next_action(tmp_p
         tr = Trainer(cfg, tmp_path / f"run{on}", progress=False)
         try:
             tr.run(max_env_steps=8)
-            batch, windows = tr.sample_batch()
+            batch, windows = tr.learner.sample_batch()
             assert batch["demo_next"].any()
             other = dict(batch, demo_next_action=1.0 - batch["demo_next_action"].abs())
             a, b = copy.deepcopy(tr.agent), copy.deepcopy(tr.agent)
@@ -220,15 +220,15 @@ def test_behaviour_cloning_pulls_toward_an_experts_labels_where_a_rollout_carrie
     cfg.agent.bc_weight, cfg.agent.lr_actor = 5.0, 1e-3
     tr = Trainer(cfg, tmp_path / "run", progress=False)
     try:
-        np.testing.assert_allclose(tr.demos["demo_target"].numpy(), labels)
-        np.testing.assert_allclose(tr.demos["action"].numpy(), planned.actions)
+        np.testing.assert_allclose(tr.learner.demos["demo_target"].numpy(), labels)
+        np.testing.assert_allclose(tr.learner.demos["action"].numpy(), planned.actions)
         tr.run(max_env_steps=8)
         model = tr.agent.model
         obs = model.normalize(torch.as_tensor(planned.clip.obs[:-1]))
         to = lambda target: (model.actor_mean(obs) - torch.as_tensor(target)).square().mean().item()  # noqa: E731
         before = to(labels)
         for _ in range(150):
-            tr.agent.update(*tr.sample_batch())
+            tr.agent.update(*tr.learner.sample_batch())
         assert to(labels) < 0.5 * before and to(labels) < to(planned.actions)
     finally:
         tr.close()

@@ -127,7 +127,7 @@ def tiny_cfg(**train):
 def test_a_run_on_device_batches_trains_and_resumes_bit_for_bit(tmp_path):
     a = Trainer(tiny_cfg(), tmp_path / "a", progress=False)
     a.run(max_env_steps=120)
-    assert a.updates > 0
+    assert a.learner.updates > 0
     for f in FIELDS:                                # the copy followed every add
         np.testing.assert_array_equal(a.batches.rows[f][: len(a.buffer)].numpy(), a.buffer.data[f][: len(a.buffer)])
     shutil.copytree(tmp_path / "a", tmp_path / "b")

@@ -201,7 +201,7 @@ def test_a_two_rank_checkpoint_resumes_on_one_process(two_ranks, tmp_path):
     meta = load_checkpoint(run / "checkpoints" / "step_0000000096").trainer_state()[1]
     assert meta["world_size"] == 2 and meta["updates"] == 15
     tr = Trainer(fbcpr_cfg(total_env_steps=144), run, resume=True, progress=False)
-    assert tr.replicas.world_size == 1 and tr.updates == 15
+    assert tr.replicas.world_size == 1 and tr.learner.updates == 15
     summary = tr.run()
     # no replay buffer in the checkpoint: 32 env steps (the warm-up) refill it, then phases ending at 128 and 144
     assert summary["env_steps"] == 144 and summary["updates"] == 15 + 2 * 3

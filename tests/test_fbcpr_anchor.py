@@ -123,7 +123,7 @@ def test_anchor_free_names_clips_of_the_library_and_the_trainer_marks_each_windo
     notice = (tmp_path / "held" / "warnings.txt").read_text()
     assert "anchor leaves 2 of 5 clips free: circle-ccw, circle-cw-small" in notice
     run.run(max_env_steps=100)
-    batch, windows = run.sample_batch()
+    batch, windows = run.learner.sample_batch()
     clip = batch["window_clip"].numpy()
     for window, m in zip(windows.numpy(), clip):       # each window lies inside the clip it is marked with
         frames = library.frames[library.offsets[m]:library.offsets[m] + library.lengths[m]]
@@ -131,7 +131,7 @@ def test_anchor_free_names_clips_of_the_library_and_the_trainer_marks_each_windo
     assert "anchor_gap" in run.agent.update(batch, windows)
     plain = Trainer(toy_cfg(**held), tmp_path / "plain", progress=False, init_from=tmp_path / "base")
     plain.run(max_env_steps=100)
-    assert "window_clip" not in plain.sample_batch()[0]
+    assert "window_clip" not in plain.learner.sample_batch()[0]
 
 
 def toy_cfg(train=None, **agent):

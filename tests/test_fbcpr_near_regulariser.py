@@ -35,7 +35,7 @@ def test_trains_on_the_toy_and_resumes_bit_for_bit(tmp_path):
     a = Trainer(toy_cfg(), tmp_path / "a", progress=False)
     disc_before = {k: v.clone() for k, v in a.agent.model.discriminator.state_dict().items()}
     a.run(max_env_steps=120)                        # warm-up, 8 updates over 4 rollout phases, a checkpoint
-    metrics = a.last_metrics
+    metrics = a.learner.last_metrics
     for k in ("fb_loss", "critic_loss", "actor_loss", "dsm_loss", "reward", "near/gap"):
         assert torch.isfinite(torch.tensor(metrics[k])), k
     assert "disc_loss" not in metrics and set(a.agent.optimizers) == {"forward_map", "backward_map", "actor",

@@ -47,13 +47,13 @@ def test_resume_reproduces_training_bit_for_bit(tmp_path):
     shutil.copytree(tmp_path / "a", tmp_path / "b")
     a.run(max_env_steps=80)
     b = Trainer(tiny_cfg(), tmp_path / "b", resume=True, progress=False)
-    assert b.env_steps == 120 and b.updates == a.updates - 8
+    assert b.env_steps == 120 and b.learner.updates == a.learner.updates - 8
     b.run(max_env_steps=80)
     sa, sb = state_of(a), state_of(b)
     assert sa.keys() == sb.keys()
     diff = [k for k in sa if not torch.equal(sa[k], sb[k])]
     assert not diff, diff[:5]
-    assert (a.env_steps, a.updates) == (b.env_steps, b.updates)
+    assert (a.env_steps, a.learner.updates) == (b.env_steps, b.learner.updates)
     np.testing.assert_array_equal(a.buffer.data["next_obs"], b.buffer.data["next_obs"])
     # a fresh run (no resume) diverges from it, so the comparison above is not vacuous
     c = Trainer(tiny_cfg(seed=1), tmp_path / "c", progress=False)
@@ -142,7 +142,7 @@ def test_cli_train_and_bad_config(tmp_path):
 
 def test_failure_signatures_are_logged_once(tmp_path):
     tr = Trainer(tiny_cfg(), tmp_path / "run", progress=False)
-    tr._action_stats[:] = (950.0, 900.0, 1000.0)
+    tr.collector.stats[:] = (950.0, 900.0, 1000.0)
     row = {"disc_expert": 0.99, "disc_online": 0.01, **tr._take_action_stats()}
     assert row["action_abs"] == pytest.approx(0.95) and row["action_saturated"] == pytest.approx(0.9)
     tr._warn(row)

@@ -825,14 +825,14 @@ def test_resume_restores_the_envs_whole_physics_state(tmp_path):
                                       "warmup_steps": 10**6, "rollout_steps": 2}})
     a = Trainer(cfg, tmp_path / "run", progress=False)
     for _ in range(10):
-        a._env_step()
+        a.collector.step()
     a.save()
     b = Trainer(cfg, tmp_path / "run", resume=True, progress=False)
     np.testing.assert_array_equal(b.bundle.env.batch.state, a.bundle.env.batch.state)  # warm start and clock too
-    np.testing.assert_array_equal(b.obs, a.obs)
+    np.testing.assert_array_equal(b.collector.obs, a.collector.obs)
     for _ in range(3):
-        a._env_step()
-        b._env_step()
+        a.collector.step()
+        b.collector.step()
     np.testing.assert_array_equal(b.bundle.env.batch.state, a.bundle.env.batch.state)
     a.close()
     b.close()

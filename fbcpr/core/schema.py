@@ -202,6 +202,12 @@ class TrainConfig:
     # MuJoCo threads of the training envs; 0: all cores, split between the ranks of a torchrun on one machine.
     # Set it when other runs share the machine (e.g. several seeds on one GPU)
     env_threads: int = _f(0, _range(0, 1024))
+    # sync: collect a rollout phase, then update (one process). async: `collectors` worker processes step the envs
+    # (num_envs / collectors each) while the learner updates, at the same update-to-data ratio
+    # (fbcpr.train.workers); each collector steps on train.env_threads MuJoCo threads (0: the cores shared by the
+    # collectors and the learner)
+    engine: str = _f("sync", _check(lambda v: v in ("sync", "async"), "must be sync or async"))
+    collectors: int = _f(1, _range(1, 256))
     dist_timeout_s: float = _f(600.0, _range(1.0, 86_400.0))  # torchrun runs: a rank gone this long is an error
     dist_backend: str = _f("auto", _check(lambda v: v in ("auto", "nccl", "gloo"), "must be auto, nccl or gloo"))
 

@@ -1,7 +1,9 @@
-"""Online training loop of every method (Algorithm 1 with the protocol of App. C.5.1 for FB-CPR).
+"""Online training loop of every method (Algorithm 1 with the protocol of App. C.5.1 for FB-CPR): the run's bookkeeping.
 
-Each iteration collects `rollout_steps` transitions from `num_envs` parallel envs (random actions during warm-up, then
-the policy with z ~ nu resampled every `z_update_every` steps), then runs `updates_per_rollout` gradient steps. The
+Each iteration has the collector (`fbcpr.train.collector`, or with `train.engine: async` the collector processes of
+`fbcpr.train.workers`) add `rollout_steps` transitions from `num_envs` parallel envs (random actions during warm-up,
+then the policy with z ~ nu resampled every `z_update_every` steps), then has the learner (`fbcpr.train.learner`) run
+`updates_per_rollout` gradient steps. The trainer keeps the schedule, evaluations, checkpoints and logs. The
 agent is the config's `algorithm` (`fbcpr.core.registry`), driven through `fbcpr.core.protocols.OnlineAgent`; z is its
 rollout latent (empty for single-task agents). Every `priority_every` env steps the policy tracks the clips and the
 motion priorities are reset from the tracking EMD (1/|bin| scheme of App. C.4). Checkpoints carry the model, the exact
@@ -26,7 +28,7 @@ import signal
 import sys
 import time
 import warnings
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -62,14 +64,15 @@ from fbcpr.eval.tracking import tracking_scores
 from fbcpr.metrics import EMDUnavailable
 from fbcpr.nn import distributed
 from fbcpr.train.buffer import ReplayBuffer, transition_specs
+from fbcpr.train.collector import Collector
 from fbcpr.train.device_batches import DeviceBatches
+from fbcpr.train.learner import Learner
 from fbcpr.train.reporting import progress_columns, summary_writer
 from fbcpr.train.resources import check_memory
 from fbcpr.train.schedule import check_world_size, phase_steps, rescheduled
+from fbcpr.train.workers import STOP_SIGNALS, CollectorPool
 
 LIVE_KEYS = ("fb_loss", "actor_loss", "critic_loss", "disc_loss", "reward")
-#: |action| beyond which a component counts as saturated (at a joint limit's side of the PD range).
-SATURATED = 0.9
 #: Failure signatures reported by public FB-CPR users, checked at every log row: (name, test, message).
 WARNINGS: tuple[tuple[str, Callable[[dict[str, float]], bool], str], ...] = (
     ("discriminator", lambda m: m.get("disc_expert", 0.0) > 0.95 and m.get("disc_online", 1.0) < 0.05,
@@ -83,8 +86,6 @@ WARNINGS: tuple[tuple[str, Callable[[dict[str, float]], bool], str], ...] = (
 )
 
 
-#: Signals that end a run at the next safe point with a checkpoint: Ctrl-C, `kill`, and the terminal going away.
-STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 def resolve_device(name: str) -> torch.device:
@@ -121,7 +122,10 @@ class Trainer:
         # ranks on one machine share its cores for physics (one process: all of them, as MuJoCo's default)
         threads = tc.env_threads or (max(1, (os.cpu_count() or 1) // r.local_world_size)
                                      if r.local_world_size > 1 else None)
-        self.bundle: EnvBundle = make_env(cfg.env, tc.num_envs, seed, threads)
+        if tc.engine == "async":
+            check_async(cfg, r.world_size)
+        # async: the envs step in the collectors, and this process's env only gives evaluations their spaces
+        self.bundle: EnvBundle = make_env(cfg.env, 1 if tc.engine == "async" else tc.num_envs, seed, threads)
         b = self.bundle
         for key, have in (("obs_dim", b.obs_dim), ("action_dim", b.action_dim)):
             given = getattr(cfg.model, key)
@@ -163,7 +167,8 @@ class Trainer:
             self.batches = DeviceBatches(self.buffer, b.library, self.agent.fields, self.device,
                                          seed=int(np.random.SeedSequence((seed, 1)).generate_state(1)[0]))
 
-        self.env_steps = self.updates = self.episodes = 0
+        self.env_steps = 0
+        self.learner = Learner(cfg, self.agent, b, self.buffer, self.batches, self.rng, r)
         self._announce_speed_switches()
         for line in getattr(self.agent, "notices", ()):
             self._notice(line)
@@ -172,8 +177,6 @@ class Trainer:
         self.next_ckpt = tc.checkpoint_every or math.inf
         self.next_log = 0
         self.emd: dict[str, float] = {}
-        self.last_metrics: Mapping[str, float] = {}  # the last update's, read lazily (fbcpr.nn.lazy_metrics)
-        self._action_stats = np.zeros(3)  # sum |a|, saturated components, components (policy actions only)
         self._warned: set[str] = set()
         self._stop = False
         self._agreed_stop = False  # under torchrun: the stop decision every rank took together at the last phase end
@@ -189,14 +192,17 @@ class Trainer:
         self._carried_weight = 0
         self._updates_from = tc.warmup_steps  # env steps before the first update (later after a buffer-less resume)
         self._last_line = 0.0
-        self.obs, info = b.env.reset(seed=seed)
-        self.z = self._sample_rollout_z(tc.num_envs)
-        self.z_age = np.zeros(tc.num_envs, dtype=np.int64)
-        self.demos: dict[str, torch.Tensor] | None = None  # train.demonstration_share: the demonstrations held apart
+        self.collector: Collector | CollectorPool = (
+            CollectorPool(cfg, b, self.agent, self.buffer, self.batches, self.rng, self.device, os.cpu_count() or 1)
+            if tc.engine == "async" else Collector(cfg, b, self.agent, self.buffer, self.batches, self.rng,
+                                                   self.device, seed))
         if tc.demonstrations and (not resume or tc.demonstration_share):  # a resume finds copies in its saved buffer
             self._add_demonstrations(Path(tc.demonstrations), tc.demonstration_copies)
         if resume:
             self._resume()
+        if not self.warm_started:  # a run from scratch explores at random until the warm-up's global env steps
+            self.collector.random_steps = max(0, math.ceil((tc.warmup_steps - self.env_steps)
+                                                           / (tc.num_envs * r.world_size)))
         if r.enabled:
             r.check_replicated(self._learner_state(*self.agent.state()), "the learner state")
         self.csv_path = self.out / "metrics.csv"
@@ -221,14 +227,6 @@ class Trainer:
     def batching(self) -> BatchConfig:
         """The method's `agent:` section, for the batch and window sizes that every method sets."""
         return batch_config(self.cfg.agent)
-
-    # --------------------------------------------------------------------------------- z for rollouts
-    def _sample_rollout_z(self, n: int) -> torch.Tensor:
-        """n rollout latents from the agent (FB-CPR's nu) given online states from the buffer and demo windows."""
-        L = self.batching.seq_length
-        online = self.buffer.sample(self.rng, n, fields=("next_obs",))["next_obs"] if len(self.buffer) > 0 else None
-        windows = torch.as_tensor(self.bundle.library.sample_windows(self.rng, n, L))
-        return self.agent.rollout_z(n, online, windows)
 
     def _add_demonstrations(self, folder: Path, copies: int) -> None:
         """train.demonstrations: the folder's transitions, `copies` times, into the replay buffer (and its device
@@ -257,21 +255,22 @@ class Trainer:
         block = {k: np.concatenate([v] * copies) for k, v in transitions(demos).items()}
         n = len(block["obs"])
         # one latent per demonstration and copy, as a rollout holds one per episode
-        z = self._sample_rollout_z(len(demos) * copies).cpu().numpy()
+        z = self.collector.sample_z(len(demos) * copies).cpu().numpy()
         block["z"] = np.repeat(z, [len(d.actions) for d in demos] * copies, axis=0)
         if cfg.train.demonstration_share:  # held apart, on the device the batches are drawn on
             dev = self.batches.device if self.batches is not None else torch.device("cpu")
-            self.demos = {k: torch.as_tensor(block[k], dtype=torch.float32, device=dev) for k in self.agent.fields}
+            demo = {k: torch.as_tensor(block[k], dtype=torch.float32, device=dev) for k in self.agent.fields}
             # their marks (False and zeros on the replay rows): every row is one, "demo_next" where the demonstration
             # goes on, with the demonstrator's next action (a target that bootstraps on it:
             # agent.bootstrap_demo_actions)
             nxt = np.concatenate([np.concatenate([d.actions[1:], d.actions[-1:]]) for d in demos])
             last = np.concatenate([np.arange(len(d.actions)) == len(d.actions) - 1 for d in demos])
-            self.demos["demo"] = torch.ones(n, dtype=torch.bool, device=dev)
-            self.demos["demo_next"] = torch.as_tensor(~last, device=dev)
-            self.demos["demo_next_action"] = torch.as_tensor(nxt, dtype=torch.float32, device=dev)
+            demo["demo"] = torch.ones(n, dtype=torch.bool, device=dev)
+            demo["demo_next"] = torch.as_tensor(~last, device=dev)
+            demo["demo_next_action"] = torch.as_tensor(nxt, dtype=torch.float32, device=dev)
             target = np.concatenate([d.target for d in demos])  # labels where a rollout carries them (DAgger)
-            self.demos["demo_target"] = torch.as_tensor(target, dtype=torch.float32, device=dev)
+            demo["demo_target"] = torch.as_tensor(target, dtype=torch.float32, device=dev)
+            self.learner.demos = demo
             self._notice(f"train.demonstrations: {len(demos)} demonstrations, {n:,} transitions held apart, "
                          f"{cfg.train.demonstration_share:.0%} of every batch")
             return
@@ -303,7 +302,7 @@ class Trainer:
                     self._loaded_sample = None  # its only reader; a cached sample would be held for the run
                 while self.env_steps < stop_at and not self._halt():
                     for _ in range(steps_per_phase):
-                        self._env_step()
+                        self.env_steps += self.collector.step() * self.replicas.world_size
                         if self._halt():
                             break
                     ready = self._agree()
@@ -311,7 +310,8 @@ class Trainer:
                         for _ in range(tc.updates_per_rollout):
                             if self._halt():
                                 break
-                            self._update()
+                            self.learner.update()
+                        self.collector.sync_policy()
                     if self._halt():
                         break
                     self._periodic(t0, steps0, stop_at)
@@ -325,8 +325,8 @@ class Trainer:
                 signal.signal(sig, h)
             if self._writer:
                 self._writer.flush()
-        return {"env_steps": self.env_steps, "updates": self.updates, "checkpoint": str(path),
-                "interrupted": self._stop, "seconds": time.perf_counter() - t0, **self.last_metrics}
+        return {"env_steps": self.env_steps, "updates": self.learner.updates, "checkpoint": str(path),
+                "interrupted": self._stop, "seconds": time.perf_counter() - t0, **self.learner.last_metrics}
 
     @property
     def wall_s(self) -> float:
@@ -351,75 +351,6 @@ class Trainer:
                                                        len(self.buffer))
         return ready
 
-    def _env_step(self) -> None:
-        tc, agent, env = self.cfg.train, self.agent, self.bundle.env
-        n = tc.num_envs
-        stale = np.flatnonzero(self.z_age >= tc.z_update_every)
-        if len(stale):
-            self.z[torch.as_tensor(stale, device=self.device)] = self._sample_rollout_z(len(stale))
-            self.z_age[stale] = 0
-        if self.env_steps < tc.warmup_steps and not self.warm_started:
-            action = self.rng.uniform(-1.0, 1.0, size=(n, self.bundle.action_dim)).astype(np.float32)
-        else:
-            action = agent.act(torch.as_tensor(self.obs, device=self.device), self.z).cpu().numpy()
-            mag = np.abs(action)
-            self._action_stats += (mag.sum(), (mag > SATURATED).sum(), mag.size)
-        next_obs, _, terminated, truncated, info = env.step(action)
-        rows = self.buffer.add({"obs": self.obs, "action": action, "next_obs": info["final_obs"],
-                                "z": self.z.cpu().numpy(), "qpos": info["final_qpos"], "qvel": info["final_qvel"],
-                                "terminated": terminated})
-        if self.batches is not None:
-            self.batches.added(rows)
-        if hasattr(agent, "observe"):  # agents that track their own progress (NEAR's annealing, in TD3 or FB-CPR)
-            agent.observe(torch.as_tensor(self.obs), torch.as_tensor(info["final_obs"]), self.z)
-        done = np.asarray(terminated | truncated)
-        self.obs = next_obs
-        self.z_age += 1
-        self.z_age[done] = tc.z_update_every  # a new episode gets a new z
-        self.episodes += int(done.sum())
-        self.env_steps += n * self.replicas.world_size  # global: every rank steps in lockstep
-
-    def sample_batch(self) -> tuple[dict[str, Any], torch.Tensor]:
-        """One update's draw, as training takes it: a replay batch and expert windows of the motion library."""
-        a = self.batching
-        clips = getattr(self.agent, "window_clips", False)  # agents that treat some clips' windows apart
-        if self.batches is not None:
-            batch, windows = self.batches.sample(a.batch_size, a.batch_size // a.seq_length, a.seq_length, clips)
-        else:
-            batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields,
-                                       history=getattr(self.agent, "history", 0))  # states before obs: sequence rewards
-            library, w = self.bundle.library, a.batch_size // a.seq_length
-            if clips:
-                frames, clip = library.sample_window_clips(self.rng, w, a.seq_length)
-                batch["window_clip"] = torch.as_tensor(clip)
-            else:
-                frames = library.sample_windows(self.rng, w, a.seq_length)
-            windows = torch.as_tensor(frames)
-        if self.demos is not None:
-            batch = self._with_demonstrations(batch)
-        return batch, windows
-
-    def _with_demonstrations(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """train.demonstration_share: the batch's first rows drawn (with replacement) from the demonstrations held
-        apart; "demo" marks them, "demo_next" those whose demonstration goes on, with its next action in
-        "demo_next_action", and "demo_target" holds their behaviour-cloning targets (zeros elsewhere)."""
-        demos = self.demos
-        assert demos is not None  # held apart whenever train.demonstration_share is set
-        size = len(batch["obs"])
-        k = round(self.cfg.train.demonstration_share * size)
-        idx = torch.as_tensor(self.rng.integers(0, len(demos["obs"]), size=k), device=batch["obs"].device)
-        out = dict(batch)
-        for key, rows in demos.items():
-            rest = batch[key][k:] if key in batch else rows.new_zeros((size - k, *rows.shape[1:]))
-            out[key] = torch.cat([rows[idx].to(rest.dtype), rest])
-        return out
-
-    def _update(self) -> None:
-        batch, windows = self.sample_batch()
-        with self.replicas.synchronized():
-            self.last_metrics = self.agent.update(batch, windows)
-        self.updates += 1
-
     # --------------------------------------------------------------------------------- periodic work
     def _periodic(self, t0: float, steps0: int, stop_at: int) -> None:
         tc = self.cfg.train
@@ -435,9 +366,11 @@ class Trainer:
         # rank 0 only, so its metrics cannot decide for all, and a log row takes every rank's counts)
         if self.env_steps >= self.next_log or (evaluated if self.replicas.enabled else extra):
             fps = (self.env_steps - steps0) / max(time.perf_counter() - t0, 1e-9)
-            episodes, dropped = self.replicas.sum(np.array([self.episodes, self.buffer.dropped], dtype=np.float64))
-            row = {"env_steps": self.env_steps, "updates": self.updates, "episodes": int(episodes),
-                   "env_steps_per_s": fps, "wall_s": self.wall_s, **self.replicas.mean_metrics(self.last_metrics),
+            episodes, dropped = self.replicas.sum(np.array([self.collector.episodes, self.buffer.dropped],
+                                                           dtype=np.float64))
+            row = {"env_steps": self.env_steps, "updates": self.learner.updates, "episodes": int(episodes),
+                   "env_steps_per_s": fps, "wall_s": self.wall_s,
+                   **self.replicas.mean_metrics(self.learner.last_metrics),
                    **self._take_action_stats(),
                    **extra}
             if dropped:
@@ -547,8 +480,7 @@ class Trainer:
 
     def _take_action_stats(self) -> dict[str, float]:
         """Mean |action| and the saturated share of the policy's rollout actions since the last log row."""
-        total, saturated, count = self.replicas.sum(self._action_stats)
-        self._action_stats[:] = 0
+        total, saturated, count = self.replicas.sum(self.collector.take_stats())
         return {"action_abs": total / count, "action_saturated": saturated / count} if count else {}
 
     def _warn(self, row: dict[str, float]) -> None:
@@ -586,17 +518,13 @@ class Trainer:
         path = root / f"step_{self.env_steps:010d}"
         tensors, meta = self.agent.state()
         r.check_replicated(self._learner_state(tensors, meta), "the learner state")
-        episodes = int(r.sum(np.array([self.episodes], dtype=np.float64))[0])
+        episodes = int(r.sum(np.array([self.collector.episodes], dtype=np.float64))[0])
         if not r.is_main:
             self._saved_at = self.env_steps
             return path
-        qpos, qvel, episode_steps = self.bundle.env.get_state()
-        # the env's whole state (MuJoCo's integration state, counters), for a resume that steps exactly as this run
-        tensors.update({f"env_state.{k}": torch.as_tensor(v) for k, v in self.bundle.env.save_state().items()})
-        tensors.update({"torch_rng": torch.get_rng_state(), "env_qpos": torch.as_tensor(qpos),
-                        "env_qvel": torch.as_tensor(qvel), "env_obs": torch.as_tensor(self.obs),
-                        "z": self.z.cpu(), "z_age": torch.as_tensor(self.z_age),
-                        "env_episode_steps": torch.as_tensor(episode_steps),
+        if isinstance(self.collector, Collector):  # the async collectors' envs are not saved
+            tensors.update(self.collector.state())
+        tensors.update({"torch_rng": torch.get_rng_state(),
                         "priorities": torch.as_tensor(np.asarray(self.bundle.library.priorities, dtype=np.float64))})
         if torch.cuda.is_available():
             tensors["cuda_rng"] = torch.cuda.get_rng_state()
@@ -604,7 +532,8 @@ class Trainer:
             tensors["device_batches_generator"] = self.batches.state()
         py_state = random.getstate()
         meta.update({
-            "env_steps": self.env_steps, "updates": self.updates, "episodes": episodes, "world_size": r.world_size,
+            "env_steps": self.env_steps, "updates": self.learner.updates, "episodes": episodes,
+            "world_size": r.world_size,
             "next_priority": _num(self.next_priority), "next_eval": _num(self.next_eval),
             "next_ckpt": _num(self.next_ckpt), "next_log": self.next_log, "emd": self.emd, "wall_s": self.wall_s,
             "numpy_rng": self.rng.bit_generator.state, "numpy_global": _np_global_state(),
@@ -634,7 +563,7 @@ class Trainer:
         imitation rewards), without its random streams (entries named `*generator`, which differ by rank)."""
         learner = {f"model.{k}": v for k, v in self.agent.model.state_dict().items()}
         learner.update({k: v for k, v in tensors.items() if not k.endswith("generator")})
-        learner["updates"] = torch.tensor([self.updates, int(meta.get("num_updates", 0))])
+        learner["updates"] = torch.tensor([self.learner.updates, int(meta.get("num_updates", 0))])
         return learner
 
     def _checkpoint_path(self) -> Path:
@@ -672,6 +601,8 @@ class Trainer:
     def close(self) -> None:
         """Remove the memory-mapped replay buffer: scratch space (a resume reads the checkpoint, never this), and
         a file as large as the whole buffer."""
+        if isinstance(self.collector, CollectorPool):
+            self.collector.close()
         if self.buffer.memmap_dir is not None:
             self.buffer.data.clear()
             shutil.rmtree(self.buffer.memmap_dir, ignore_errors=True)
@@ -718,7 +649,8 @@ class Trainer:
             if self._kept_sample is None:
                 raise CheckpointError(f"{ckpt.path}: no reward-inference sample to keep (train.keep_reward_sample)")
         try:
-            self.env_steps, self.updates, self.episodes = meta["env_steps"], meta["updates"], meta["episodes"]
+            self.env_steps, self.learner.updates = meta["env_steps"], meta["updates"]
+            self.collector.episodes = meta["episodes"]
             tc = self.cfg.train
             self.next_priority = rescheduled(_inf(meta["next_priority"]), tc.priority_every, self.env_steps)
             self.next_eval = rescheduled(_inf(meta["next_eval"]), tc.eval_every, self.env_steps)
@@ -745,20 +677,15 @@ class Trainer:
                 torch.cuda.set_rng_state(tensors["cuda_rng"])
             if self.batches is not None and "device_batches_generator" in tensors:  # else: a fresh stream
                 self.batches.load_state(tensors["device_batches_generator"])
-            self.z = tensors["z"].to(self.device)
-            self.z_age = tensors["z_age"].numpy().copy()
-            env_state = {k.removeprefix("env_state."): v.numpy() for k, v in tensors.items()
-                         if k.startswith("env_state.")}
-            if env_state:  # the whole state: the resumed envs step bit for bit as the saved ones would have
-                try:
-                    self.bundle.env.load_state(env_state)
+            if isinstance(self.collector, Collector) and "z" in tensors:
+                try:  # the whole env state: the resumed envs step bit for bit as the saved ones would have
+                    self.collector.load_state(tensors)
                 except ValueError as err:  # the env's own error types included: another env or MuJoCo build
                     raise CheckpointError(f"{ckpt.path}/trainer_state.safetensors: {err}") from None
-                self.obs = tensors["env_obs"].numpy().copy()
-            else:  # checkpoints from before the whole state was saved: qpos and qvel, close but not bit-exact
-                self.obs, _ = self.bundle.env.reset(options={"qpos": tensors["env_qpos"].numpy(),
-                                                             "qvel": tensors["env_qvel"].numpy()})
-                self.bundle.env.set_episode_steps(tensors["env_episode_steps"].numpy())
+            elif isinstance(self.collector, Collector):  # saved by the async engine: new episodes
+                self.collector.restart(int(np.random.SeedSequence((tc.seed, self.env_steps)).generate_state(1)[0]))
+            else:  # the async collectors start new episodes, seeded by the step they start at
+                self.collector.start_steps = self.env_steps
             self.bundle.env.np_random.bit_generator.state = meta["env_rng"]
         except KeyError as e:
             raise CheckpointError(f"{ckpt.path}/trainer_state.safetensors: missing entry {e}") from None
@@ -790,18 +717,16 @@ class Trainer:
     def _fresh_shard(self) -> None:
         """A resumed rank other than 0: new envs, random streams and latents, seeded from (seed + rank, env steps)
         so they neither repeat the run's start nor depend on the world size of the run that saved the checkpoint."""
-        self.episodes = 0
         seeds = np.random.SeedSequence((self.cfg.train.seed + self.replicas.rank, self.env_steps)).generate_state(4)
         random.seed(int(seeds[0]))
         np.random.seed(int(seeds[0]))
-        self.rng = np.random.default_rng(int(seeds[1]))
+        self.rng.bit_generator.state = np.random.default_rng(int(seeds[1])).bit_generator.state  # the parts share it
         torch.manual_seed(int(seeds[2]))
         self.agent.generator.manual_seed(int(seeds[2]))
         if self.batches is not None:
             self.batches.generator.manual_seed(int(seeds[2]))
-        self.obs, _ = self.bundle.env.reset(seed=int(seeds[3]))
-        self.z = self._sample_rollout_z(self.cfg.train.num_envs)
-        self.z_age = np.zeros(self.cfg.train.num_envs, dtype=np.int64)
+        assert isinstance(self.collector, Collector)  # torchrun runs the sync engine (check_async)
+        self.collector.restart(int(seeds[3]))
 
     # --------------------------------------------------------------------------------- plumbing
     def _install_signals(self) -> dict[int, Any]:
@@ -836,8 +761,9 @@ class Trainer:
     def _metric_text(self) -> str:
         """Compact live metrics for the progress bar, e.g. `u 1,200 fb 3.1 act -12 crit 0.4`."""
         short = {"fb_loss": "fb", "actor_loss": "act", "critic_loss": "crit", "disc_loss": "disc", "reward": "r"}
-        parts = [f"{short[k]} {self.last_metrics[k]:.2g}" for k in LIVE_KEYS if k in self.last_metrics]
-        return " ".join([f"u {self.updates:,}", *parts])
+        metrics = self.learner.last_metrics
+        parts = [f"{short[k]} {metrics[k]:.2g}" for k in LIVE_KEYS if k in metrics]
+        return " ".join([f"u {self.learner.updates:,}", *parts])
 
     def _log_line(self, total: int, rate: float) -> None:
         """One plain progress line (for logs and CI, where the live bar is off), on stderr where the bar would be, so
@@ -856,6 +782,18 @@ class Trainer:
         with Progress(*progress_columns(), console=Console(stderr=True), transient=False, expand=True) as progress:
             yield progress, progress.add_task("training", total=total, completed=self.env_steps,
                                               metrics=self._metric_text())
+
+
+def check_async(cfg: Config, world_size: int) -> None:
+    """ConfigError unless the async engine can run `cfg`: its envs split evenly over the collectors, in one
+    process (the collectors are its data parallelism)."""
+    tc = cfg.train
+    if tc.num_envs % tc.collectors:
+        raise ConfigError(f"train.collectors: {tc.collectors} collectors do not split train.num_envs: {tc.num_envs} "
+                          "evenly; use a divisor of num_envs")
+    if world_size > 1:
+        raise ConfigError(f"train.engine: async runs in one process and {world_size} ranks were launched; use "
+                          "train.collectors for more envs, or train.engine: sync under torchrun")
 
 
 def config_json(cfg: Config) -> str:

@@ -43,7 +43,7 @@ def run_seed(seed: int, steps: int | None, out: Path, cfg: Config | None = None)
         print(f"seed {seed} {trainer.env_steps:6d} steps {time.perf_counter() - t0:6.0f}s",
               json.dumps({k: round(v, 3) for k, v in res.items() if "/" not in k or "return" in k}), flush=True)
     history["train_seconds"] = time.perf_counter() - t0
-    history["updates"] = trainer.updates
+    history["updates"] = trainer.learner.updates
     return history
 
 
