@@ -44,6 +44,7 @@ class Receding:
     horizon: int = 24      # steps each candidate is rolled out and scored (>= window)
     sigma: float = 0.4     # the first round's perturbation scale (per z coordinate, on the sqrt(d) sphere)
     decay: float = 0.6     # sigma shrinks by this each round
+    warm: bool = True      # start each window's search from the last window's shift (the B-given z's still a candidate)
     seed: int = 0
 
     def search(self, offset: int = 0) -> Search:
@@ -185,10 +186,15 @@ def refine_track(policy: Policy, reference: np.ndarray, start: tuple[np.ndarray,
                     best.update(cost=float(mean_cost[i]), z=z[i, :e], centre=cands[i], state=_row(snap, i),
                                 trail=[part[i, :lived[i]] for part in trail], lived=int(lived[i]))
                 if "cost0" not in best:
-                    best["cost0"] = float(mean_cost[0])  # the first round's first row: z̄, the B-given candidate
+                    best["cost0"] = float(mean_cost[0])  # the first row scored: z̄, the B-given candidate
                 return -mean_cost
 
-            refined = cross_entropy(score, z_bar, settings.search(w))
+            start_z = z_bar
+            if settings.warm and window_z:  # the last window's shift from its B-given centre, carried over
+                score(z_bar[None])  # the B-given candidate stays one, scored on its own
+                start_z = project((z_bar + window_z[-1] - window_z0[-1])[None])[0]
+                rollouts += 1
+            refined = cross_entropy(score, start_z, settings.search(w))
             rollouts += k * settings.rounds + 1
             history += [{"window": float(w), **row} for row in refined.history]
             zs[t0:t0 + e] = best["z"]

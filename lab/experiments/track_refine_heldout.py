@@ -64,6 +64,7 @@ def main() -> None:
     ap.add_argument("--sigma", type=float, default=0.4)
     ap.add_argument("--decay", type=float, default=0.6)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cold", action="store_true", help="no warm start from the last window's shift")
     ap.add_argument("--threads", type=int, default=1, help="MuJoCo threads of the batched envs")
     ap.add_argument("--max-frames", type=int, default=0, help="cut each clip to this many frames (0: whole)")
     ap.add_argument("--out", type=Path)
@@ -71,7 +72,8 @@ def main() -> None:
     torch.set_num_threads(1)
     bfm = BFM.load(args.model)
     settings = Receding(candidates=args.candidates, rounds=args.rounds, window=args.window, horizon=args.horizon,
-                        sigma=args.sigma, decay=args.decay, seed=args.seed)
+                        sigma=args.sigma, decay=args.decay, seed=args.seed,
+                        warm=not args.cold)
     rows = []
     for path in args.clips:
         clip = load_motion(path)
