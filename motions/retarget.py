@@ -81,7 +81,7 @@ class SourceMotion:
     times: np.ndarray  # (T,) seconds
     orientations: dict[str, np.ndarray] = field(default_factory=dict)  # ORIENTED key -> (T, 4) wxyz
     loop: bool = False
-    floor: float | None = None  # source floor height (in source units); None: the clip's lowest foot point
+    floor: float | None = None  # source floor height (in source units); None: found from the feet (`source_floor`)
     soles: dict[str, np.ndarray] = field(default_factory=dict)  # "l"/"r" -> (T, k, 3) sole points for contacts
     source: str = "unknown"
     license: str = "unknown"
@@ -100,6 +100,14 @@ class SourceMotion:
                 raise ValueError(f"{self.name}: {key} has shape {arr.shape} or non-finite values (expected {n} frames)")
 
 
+#: Bounds past which a clip is flagged in the import report: foot slide (m/s over contact frames), penetration and
+#: contact gap (m), joint limits (clipped joint-frames per frame), glitch (the fastest keypoint relative to the
+#: pelvis, leg lengths/s: ballet spins reach 30 in the CMU takes, marker swaps 35-60), few contacts (share of
+#: frames with a foot in contact, below which the slide and the gap say little).
+QUALITY_LIMITS = {"foot slide": 0.3, "penetration": 0.02, "contact gap": 0.03, "joint limits": 0.05,
+                  "glitch": 35.0, "few contacts": 0.2}
+
+
 @dataclass
 class RetargetReport:
     """What happened to one clip, for the import summary and tests."""
@@ -114,10 +122,22 @@ class RetargetReport:
     keypoint_error: float = 0.0  # m, mean distance between IK result and targets
     foot_slide: float = 0.0  # m/s, mean horizontal speed of a foot over the frames it is in contact
     contacts: np.ndarray | None = None  # (T, 2) bool, left/right foot in contact (from the source)
+    contact_share: float = 0.0  # share of frames with a foot in contact: a slide of 0 over no contact says nothing
+    peak_limb_speed: float = 0.0  # leg lengths/s, fastest keypoint relative to the pelvis in the source
 
     @property
     def clipped_total(self) -> int:
         return int(sum(self.clipped.values()))
+
+    def flags(self) -> list[str]:
+        """What in this clip is worth a look before training on it (QUALITY_LIMITS); empty for a clean clip."""
+        measured = {"foot slide": self.foot_slide, "penetration": self.max_penetration,
+                    "contact gap": self.max_contact_gap, "joint limits": self.clipped_total / max(self.frames, 1),
+                    "glitch": self.peak_limb_speed}
+        out = [name for name, value in measured.items() if value > QUALITY_LIMITS[name]]
+        if self.contact_share < QUALITY_LIMITS["few contacts"]:
+            out.append("few contacts")
+        return out
 
 
 class _Rest:
@@ -233,10 +253,31 @@ def build_targets(src_pos: dict[str, np.ndarray], src_rot: dict[str, np.ndarray]
     return tgt, rots, scale
 
 
+#: Percentile of each frame's lowest sole point taken as the floor of a source that does not give one.
+FLOOR_PERCENTILE = 5.0
+def source_floor(src_pos: dict[str, np.ndarray]) -> float:
+    """The floor under a source's feet: a low percentile of each frame's lowest sole point rather than the lowest
+    point of the clip, which a few frames of a foot through the floor (a capture glitch) would set several
+    centimetres too deep, so that no frame counted as a contact."""
+    lowest = np.minimum(src_pos["l_sole"][..., 2].min(axis=1), src_pos["r_sole"][..., 2].min(axis=1))
+    return float(np.percentile(lowest, FLOOR_PERCENTILE))
+
+
+def limb_speeds(positions: dict[str, np.ndarray], times: np.ndarray) -> np.ndarray:
+    """(T-1,) fastest keypoint relative to the pelvis between consecutive frames, in leg lengths per second: a
+    scale-free test for frames no body made (a rest pose before the take, a marker swap)."""
+    pelvis = (positions["l_hip"] + positions["r_hip"]) / 2
+    leg = np.median(np.linalg.norm(positions["l_hip"] - positions["l_knee"], axis=1) +
+                    np.linalg.norm(positions["l_knee"] - positions["l_ankle"], axis=1))
+    relative = np.stack([v - pelvis for v in positions.values()], axis=1)  # (T, keypoints, 3)
+    step = np.linalg.norm(np.diff(relative, axis=0), axis=2).max(axis=1)
+    return step / (leg * np.diff(times))
+
+
 def source_contacts(src_pos: dict[str, np.ndarray], fps: float, scale: float, floor: float | None) -> np.ndarray:
     """(T,2) foot contacts judged on the source: a sole point near the floor and slow."""
     if floor is None:
-        floor = min(src_pos[f"{s}_sole"][..., 2].min() for s in "lr")
+        floor = source_floor(src_pos)
     out = []
     for s in "lr":
         pts = src_pos[f"{s}_sole"] * scale  # (T,k,3)
@@ -420,5 +461,7 @@ class Retargeter:
             name=src.name, frames=n, seconds=n / self.fps, compute_seconds=time.perf_counter() - start,
             clipped=clipped, max_penetration=penetration, max_contact_gap=gap, keypoint_error=err / n,
             foot_slide=foot_slide(self.model, qpos, contacts, self.fps), contacts=contacts,
+            contact_share=float(contacts.any(axis=1).mean()),
+            peak_limb_speed=float(limb_speeds(src.positions, src.times).max()),
         )
         return qpos, report

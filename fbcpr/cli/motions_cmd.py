@@ -107,8 +107,13 @@ def import_cmd(
                                              "here."),
     skeleton: Path | None = typer.Option(None, "--skeleton", help="ASF/AMC: the ASF skeleton of the .amc motions "
                                          "(default: <subject>.asf beside each, or the folder's only .asf)."),
+    fps: float | None = typer.Option(None, "--fps", help="The sources' frame rate, where a file's own is wrong "
+                                     "(a BVH header, AMASS mocap_framerate; AMC files assume 120): the clips last "
+                                     "(file's rate / FPS) times as long."),
 ) -> None:
-    """Convert motion files to 30 Hz clips; a failing file is reported and skipped, and writes are atomic."""
+    """Convert motion files to 30 Hz clips; a failing file is reported and skipped, and writes are atomic.
+    Each clip's quality (foot slide, floor penetration, joint-limit hits, capture glitches) is printed and kept in
+    import_summary.json beside the clips, with the reasons it is worth a look under "flags"."""
     from fbcpr.core.paths import check_output_folder
     from motions.clip import save_clip
     from motions.importers import import_file
@@ -116,6 +121,8 @@ def import_cmd(
     check_output_folder(out, "--out", [("the source", src) for src in sources])
     if up_axis not in (None, "y", "z"):
         raise typer.BadParameter("--up-axis must be y or z")
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise typer.BadParameter(f"--fps must be a positive number of frames per second, got {fps}")
     names = read_joint_map(joint_map) if joint_map is not None else None
     files, skipped = _expand(sources)
     if skipped:
@@ -136,7 +143,7 @@ def import_cmd(
             bar.update(task, description=f"importing {path.name}")
             try:
                 clip, report = import_file(path, up_axis=up_axis, loop_seconds=loop_seconds, use_cache=not no_cache,
-                                           joint_map=names, skeleton=skeleton)
+                                           joint_map=names, skeleton=skeleton, fps=fps)
                 stem = clip.name
                 k = 1
                 while stem in used:  # two sources with one name in a single run keep both
@@ -149,19 +156,26 @@ def import_cmd(
                              "clipped_joints": dict(sorted(report.clipped.items(), key=lambda kv: -kv[1])),
                              "max_foot_penetration_m": round(report.max_penetration, 4),
                              "max_contact_gap_m": round(report.max_contact_gap, 4),
-                             "foot_slide_m_s": round(report.foot_slide, 4)})
+                             "foot_slide_m_s": round(report.foot_slide, 4),
+                             "contact_share": round(report.contact_share, 3),
+                             "peak_limb_speed_legs_s": round(report.peak_limb_speed, 1),
+                             "keypoint_error_m": round(report.keypoint_error, 4), "flags": report.flags()})
             except Exception as err:  # one bad file must not stop the others
                 failed.append({"file": str(path),
                                "reason": str(err).strip().splitlines()[0] if str(err) else type(err).__name__})
             bar.advance(task)
     seconds = sum(d["seconds"] for d in done)
     _write_json_atomic(merge_summary(out / "import_summary.json", done, failed), out / "import_summary.json")
-    table = Table(title=f"Imported {len(done)} clip(s), {seconds:.1f} s of motion -> {out}")
-    for col in ("clip", "frames", "seconds", "clipped joint-frames", "penetration (m)", "foot slide (m/s)"):
-        table.add_column(col, justify="right" if col not in ("clip", "clipped joint-frames") else "left")
+    flagged = sum(bool(d["flags"]) for d in done)
+    table = Table(title=f"Imported {len(done)} clip(s), {seconds:.1f} s of motion -> {out}",
+                  caption=f"{flagged} clip(s) flagged" if flagged else None)
+    for col in ("clip", "frames", "seconds", "clipped joint-frames", "penetration (m)", "foot slide (m/s)",
+                "contact", "limbs (legs/s)", "flags"):
+        table.add_column(col, justify="left" if col in ("clip", "clipped joint-frames", "flags") else "right")
     for d in done:
         table.add_row(d["clip"], str(d["frames"]), f"{d['seconds']:.1f}", _clipped_text(d),
-                      f"{d['max_foot_penetration_m']:.3f}", f"{d.get('foot_slide_m_s', 0.0):.3f}")
+                      f"{d['max_foot_penetration_m']:.3f}", f"{d['foot_slide_m_s']:.3f}", f"{d['contact_share']:.0%}",
+                      f"{d['peak_limb_speed_legs_s']:.0f}", ", ".join(d["flags"]) or "-")
     if done:  # an empty table before the errors says nothing
         console.print(table)
     if skeletons:

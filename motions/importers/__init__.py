@@ -23,7 +23,7 @@ from motions.retarget import Retargeter, RetargetReport
 __all__ = ["FORMATS", "UnknownFormatError", "cache_dir", "detect_format", "import_file"]
 
 #: Bump when a converter's output changes, so cached conversions are not reused.
-CONVERTER_VERSION = "3"
+CONVERTER_VERSION = "4"
 
 
 def cache_dir() -> Path:
@@ -69,19 +69,25 @@ def _retargeter() -> Retargeter:
 
 def import_file(path: str | os.PathLike, up_axis: str | None = None, loop_seconds: float = 0.0,
                 use_cache: bool = True, joint_map: dict[str, str] | None = None,
-                skeleton: str | os.PathLike | None = None) -> tuple[Clip, RetargetReport]:
+                skeleton: str | os.PathLike | None = None, fps: float | None = None) -> tuple[Clip, RetargetReport]:
     """Convert one motion file to a 30 Hz clip, with a report (clipped joints, floor contact quality).
 
     up_axis overrides the format's default (AMASS "z", BVH "y"; DeepMimic is always y up).
     loop_seconds > 0 repeats cyclic clips (DeepMimic "wrap") with accumulated root offset until they last that long.
     joint_map names BVH joints (or ASF bones) for keypoints (`motions.importers.bvh.NAMES`) of a rig whose names
     are unknown. skeleton: the ASF of an AMC motion (default: the one beside it, `asfamc.find_skeleton`).
+    fps: the source's frame rate, overriding what the file says (a wrong BVH header, AMASS mocap_framerate,
+    DeepMimic frame durations) or assumes (AMC: 120); a clip at twice the rate lasts half as long.
     """
     path = Path(path)
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}")
     fmt = detect_format(path)
     options: dict = {"up_axis": up_axis, "loop_seconds": loop_seconds}
     if joint_map:
         options["joint_map"] = joint_map
+    if fps is not None:
+        options["fps"] = fps
     if fmt == "amc":
         from motions.importers.asfamc import AsfAmcFormatError, find_skeleton
 
@@ -102,21 +108,23 @@ def import_file(path: str | os.PathLike, up_axis: str | None = None, loop_second
     if fmt == "amass":
         from motions.importers.amass import import_amass
 
-        qpos, report, prov = import_amass(path, fps=FPS, up_axis=up_axis or "z")
+        qpos, report, prov = import_amass(path, fps=FPS, up_axis=up_axis or "z", source_fps=fps)
         name, source, license_ = path.stem, prov["source"], prov["license"]
     else:
         if fmt == "deepmimic":
             from motions.importers.deepmimic import load_deepmimic
 
             src = load_deepmimic(path)
+            if fps is not None:
+                src.times = np.arange(len(src.times)) / fps
         elif fmt == "amc":
-            from motions.importers.asfamc import load_amc
+            from motions.importers.asfamc import AMC_FPS, load_amc
 
-            src = load_amc(path, skeleton, up_axis=up_axis or "y", joint_map=joint_map)
+            src = load_amc(path, skeleton, up_axis=up_axis or "y", joint_map=joint_map, fps=fps or AMC_FPS)
         else:
             from motions.importers.bvh import load_bvh
 
-            src = load_bvh(path, up_axis=up_axis or "y", joint_map=joint_map)
+            src = load_bvh(path, up_axis=up_axis or "y", joint_map=joint_map, fps=fps)
         qpos, report = _retargeter().run(src)
         name, source, license_, loop = src.name, src.source, src.license, src.loop
     if loop and loop_seconds > 0 and qpos.shape[0] > 2:

@@ -120,13 +120,15 @@ def foot_contacts(model, qpos: np.ndarray, fps: float) -> np.ndarray:
     return (low - low.min() < CONTACT_HEIGHT) & (vz < CONTACT_SPEED)
 
 
-def import_amass(path: str | Path, fps: float = 30.0, up_axis: str = "z") -> tuple[np.ndarray, RetargetReport, dict]:
-    """(qpos at `fps`, report, provenance) for one AMASS/SMPL file."""
+def import_amass(path: str | Path, fps: float = 30.0, up_axis: str = "z",
+                 source_fps: float | None = None) -> tuple[np.ndarray, RetargetReport, dict]:
+    """(qpos at `fps`, report, provenance) for one AMASS/SMPL file; `source_fps` overrides its mocap_framerate."""
     import time
 
     path = Path(path)
     start = time.perf_counter()
     poses, trans, src_fps = read_amass(path)
+    src_fps = source_fps or src_fps
     qpos = resample_qpos(smpl_to_qpos(poses, trans, up_axis), src_fps, fps)
     model = load_model()
     lo, hi = joint_ranges(model).T
@@ -139,6 +141,6 @@ def import_amass(path: str | Path, fps: float = 30.0, up_axis: str = "z") -> tup
     report = RetargetReport(
         name=path.stem, frames=qpos.shape[0], seconds=qpos.shape[0] / fps, compute_seconds=time.perf_counter() - start,
         clipped=clipped, max_penetration=penetration, max_contact_gap=gap, contacts=contacts,
-        foot_slide=foot_slide(model, qpos, contacts, fps),
+        foot_slide=foot_slide(model, qpos, contacts, fps), contact_share=float(contacts.any(axis=1).mean()),
     )
     return qpos, report, {"source": f"AMASS/SMPL {path.name}", "license": "see the AMASS license of the source dataset"}

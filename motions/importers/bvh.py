@@ -16,10 +16,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from motions.limits import MAX_BVH_DEPTH, check_frame_times, read_text
-from motions.retarget import SourceMotion
+from motions.retarget import SourceMotion, limb_speeds
 
-#: keypoint -> candidate joint names (lower case, tried in order): CMU's, common alternatives such as MakeHuman's,
-#: and Character Creator's (`CC_Base_L_Thigh`, ...).
+#: keypoint -> candidate joint names (lower case, tried in order): CMU's, common alternatives such as MakeHuman's
+#: and the Daz/Poser names of the Daz-friendly CMU release (`lThigh`, `lShin`, `lFoot`, `lShldr`, `lForeArm`,
+#: `lHand`; its toe is the End Site below the foot, its `lButtock` sits above the hip joint and is not one), and
+#: Character Creator's (`CC_Base_L_Thigh`, ...).
 NAMES = {
     "l_hip": ("leftupleg", "lefthip", "lhip", "l_hip", "leftthigh", "lthigh", "cc_base_l_thigh"),
     "l_knee": ("leftleg", "leftknee", "lknee", "l_knee", "leftshin", "lshin", "leftlowerleg", "cc_base_l_calf"),
@@ -196,18 +198,25 @@ def _find(joints: list[Joint], key: str) -> int | None:
     return None
 
 
-def load_bvh(path: str | Path, up_axis: str = "y", joint_map: dict[str, str] | None = None) -> SourceMotion:
+def load_bvh(path: str | Path, up_axis: str = "y", joint_map: dict[str, str] | None = None,
+             fps: float | None = None) -> SourceMotion:
     """Keypoints of a BVH clip in our z-up world; `joint_map` names the joint of any keypoint (l_hip, r_toe, head,
-    ...) for a rig whose names are not known here."""
+    ...) for a rig whose names are not known here. `fps` overrides the header's frame time, for files whose header
+    is wrong (the Daz-friendly CMU salsa takes say 120 fps and are 60)."""
     path = Path(path)
     if up_axis not in ("y", "z"):
         raise ValueError(f"up_axis must be 'y' or 'z', got {up_axis!r}")
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}")
     joint_map = dict(joint_map or {})
     unknown = sorted(set(joint_map) - set(NAMES))
     if unknown:
         raise BvhFormatError(f"joint map: unknown keypoint {unknown[0]!r} (keypoints: {', '.join(NAMES)})")
     text = read_text(path, BvhFormatError)
-    joints, values, frame_time = parse_bvh(text, str(path))
+    joints, values, header_time = parse_bvh(text, str(path))
+    frame_time = header_time
+    if fps is not None:
+        frame_time = 1.0 / fps
     world = forward_kinematics(joints, values)
     if up_axis == "y":
         world = world @ Y_UP_TO_Z_UP.T
@@ -229,21 +238,31 @@ def load_bvh(path: str | Path, up_axis: str = "y", joint_map: dict[str, str] | N
                                  f"map, e.g. `fbcpr motions import --joint-map map.yaml` with `{key}: JointName`)")
         idx[key] = found
     positions = {k: world[:, i] for k, i in idx.items()}
-    skip = leading_rest_frames(positions)
+    skip = leading_rest_frames(positions, frame_time)
     positions = {k: v[skip:] for k, v in positions.items()}
     note = f" (first {skip} frame(s), a rest pose apart from the motion, left out)" if skip else ""
+    rate = f" at {fps:g} fps (the header says {1.0 / header_time:g})" if fps is not None else ""
     return SourceMotion(name=path.stem, positions=positions, times=np.arange(values.shape[0] - skip) * frame_time,
-                        source=f"BVH {path.name}{note}", license="see the license of the source dataset")
+                        source=f"BVH {path.name}{rate}{note}", license="see the license of the source dataset")
 
 
-def leading_rest_frames(positions: dict[str, np.ndarray]) -> int:
-    """How many first frames stand apart from the motion: some exporters put the rig's rest pose (a T-pose at the
-    origin) before the take, and the pelvis then jumps more than half a leg length to the next frame, which no
-    body does in one frame. Only leading frames: a jump inside the take stays an error of the clip."""
+#: Pelvis-relative keypoint speed, in leg lengths per second, above which a leading frame is no body's motion.
+REST_BLEND_SPEED = 10.0
+
+
+def leading_rest_frames(positions: dict[str, np.ndarray], frame_time: float = 1 / 120) -> int:
+    """How many first frames stand apart from the motion: some exporters put the rig's rest pose (a T-pose)
+    before the take. At the origin (Character Creator), the pelvis jumps more than half a leg length to the next
+    frame; in place (the Daz-friendly release), the limbs swing from the T-pose into the take's first pose within
+    a few frames, faster than REST_BLEND_SPEED leg lengths a second relative to the pelvis (kicks and spins reach
+    that inside the CMU takes; none starts with one). Only leading frames: a jump inside the take stays an error of
+    the clip."""
     pelvis = (positions["l_hip"] + positions["r_hip"]) / 2
-    leg = np.linalg.norm(positions["l_hip"] - positions["l_knee"], axis=1) + \
-        np.linalg.norm(positions["l_knee"] - positions["l_ankle"], axis=1)
-    jumps = np.linalg.norm(np.diff(pelvis, axis=0), axis=1) > 0.5 * np.median(leg)
+    leg = np.median(np.linalg.norm(positions["l_hip"] - positions["l_knee"], axis=1) +
+                    np.linalg.norm(positions["l_knee"] - positions["l_ankle"], axis=1))
+    times = np.arange(len(pelvis)) * frame_time
+    jumps = (np.linalg.norm(np.diff(pelvis, axis=0), axis=1) > 0.5 * leg) | \
+        (limb_speeds(positions, times) > REST_BLEND_SPEED)
     skip = 0
     while skip < len(jumps) - 2 and jumps[skip]:
         skip += 1
