@@ -335,8 +335,9 @@ def track_command(
     console.print(_table(title, rows + _diverged_row(ep)))
     if refined is not None:
         console.print(f"refinement cost: {refined.seconds:.1f} s of compute for {refined.motion_seconds:.1f} s of "
-                      f"motion, {refined.cost:.1f} s per second of motion ({refine} candidates x {rounds} rounds, "
-                      f"horizon {horizon}, window {window}, {refined.rollouts} rollouts)", highlight=False)
+                      f"motion, {refined.cost:.1f} s per second of motion ({refined.cpu_cost:.1f} s of processor "
+                      f"time per second; {refine} candidates x {rounds} rounds, horizon {horizon}, window {window}, "
+                      f"{refined.rollouts} rollouts)", highlight=False)
     if video is not None:
         write_frames(ep, video)
 

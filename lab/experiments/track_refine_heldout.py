@@ -61,7 +61,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--window", type=int, default=8)
     ap.add_argument("--horizon", type=int, default=24)
-    ap.add_argument("--sigma", type=float, default=0.4)
+    ap.add_argument("--sigma", type=float, default=0.6)
     ap.add_argument("--decay", type=float, default=0.6)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cold", action="store_true", help="no warm start from the last window's shift")
@@ -96,18 +96,19 @@ def main() -> None:
                "fell_zero": stays_up(z_qpos, clip, z_div)[1], "fell_refined": stays_up(res.qpos, clip,
                                                                                        res.diverged_at is not None)[1],
                "plan_cost0": float(res.plan_cost0.mean()), "plan_cost": float(res.plan_cost.mean()),
-               "s_per_s": res.cost, "wall": wall, "load": [load0, os.getloadavg()[0]]}
+               "s_per_s": res.cost, "cpu_s_per_s": res.cpu_cost, "cpu": res.cpu_seconds, "wall": wall, "load": [load0, os.getloadavg()[0]]}
         rows.append(row)
         print(f"{row['clip']:>16} {row['frames']:5d}  mpjpe floor {row['mpjpe_floor']:.3f} zero "
               f"{row['mpjpe_zero']:.3f} ref {row['mpjpe_refined']:.3f} | emd floor {row['emd_floor']:.2f} zero "
               f"{row['emd_zero']:.2f} ref {row['emd_refined']:.2f} | up {row['up_zero']:d}/{row['up_refined']:d} "
-              f"| {row['s_per_s']:.1f} s/s load {row['load'][0]:.1f}-{row['load'][1]:.1f}", flush=True)
+              f"| {row['s_per_s']:.1f} s/s wall, {row['cpu_s_per_s']:.1f} cpu, load {row['load'][0]:.1f}-{row['load'][1]:.1f}", flush=True)
     keys = ("mpjpe_zero", "mpjpe_refined", "emd_zero", "emd_refined")
     ratio = {k: float(np.mean([r[k] / r[k.split("_")[0] + "_floor"] for r in rows])) for k in keys}
     summary = {"settings": vars(settings), "model": args.model, "ratio_to_floor_mean": ratio,
                "up_zero": float(np.mean([r["up_zero"] for r in rows])),
                "up_refined": float(np.mean([r["up_refined"] for r in rows])),
-               "s_per_s_overall": float(sum(r["wall"] for r in rows) / sum((r["frames"] - 1) / 30 for r in rows))}
+               "s_per_s_overall": float(sum(r["wall"] for r in rows) / sum((r["frames"] - 1) / 30 for r in rows)),
+               "cpu_s_per_s_overall": float(sum(r["cpu"] for r in rows) / sum((r["frames"] - 1) / 30 for r in rows))}
     print(json.dumps(summary, indent=1))
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
