@@ -11,7 +11,8 @@ sqrt(d) sphere that the policy was trained on:
   on the reward-inference buffer, r(s') = exp(-d_smpl(s', g) / 2), inferred as a reward is (`states`): states
   the model visited, where B(g) of a motionless pose is not; or the projected sum of both (`mix`);
 - track: z_t ∝ Σ_{j=t+1}^{t+L} B(s_j), the ER_FB encoding of the next L states (L = training sequence length),
-  the window shrinking at the end of the clip;
+  the window shrinking at the end of the clip; `refine=N` searches nearby z's with the simulator
+  (`fbcpr.inference.track_refine`);
 - imitate: ER_FB of the whole clip (mean of B over its states);
 - mix: a weighted sum of zs, projected again.
 Rewards compose before inference through the reward registry's `a*b` / `a+b` names.

@@ -11,8 +11,9 @@ body is. Here the clip is cut into windows of `window` steps, and at each window
   leaves the body falling loses), all candidates as one batch of envs, and costs the mean d_smpl between the
   states it reaches and the reference frames it should reach (a diverged simulation costs DIVERGED_COST a step);
 - `fbcpr.inference.refine.cross_entropy` searches: `rounds` rounds of `candidates` centres, each round narrowing
-  around the elites of the last, z̄ the first round's first row; the cheapest candidate of any round is kept, so
-  the kept one never costs more than zero-shot on the window's planning objective;
+  around the elites of the last, from z̄ (or, with `warm`, from z̄ shifted as the last window's kept centre was,
+  z̄ then scored on its own); the cheapest candidate of any round is kept, so the kept one never costs more than
+  zero-shot on the window's planning objective;
 - the kept candidate's first `window` steps are executed (its simulator state after them is kept exactly, not
   simulated again) and the next window starts there.
 
