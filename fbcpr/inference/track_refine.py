@@ -155,7 +155,10 @@ def refine_track(policy: Policy, reference: np.ndarray, start: tuple[np.ndarray,
         state = single.save_state()
         obs, qpos, qvel = [first_obs[0]], [info["qpos"][0]], [info["qvel"][0]]
         zs = zs0.astype(np.float32).copy()
-        window_z, window_z0, cost, cost0 = [], [], [], []
+        window_z: list[np.ndarray] = []
+        window_z0: list[np.ndarray] = []
+        cost: list[float] = []
+        cost0: list[float] = []
         history: list[dict[str, float]] = []
         rollouts, diverged_at = 0, None
         for w in range(n_windows):
