@@ -84,8 +84,8 @@ def test_the_search_never_costs_more_than_the_B_given_zs(bfm, clip):
 @pytest.mark.parametrize("refine, message", [
     (Receding(window=0), "window must be a positive integer"),
     (Receding(window=8, horizon=4), "horizon (4) must be at least the window (8)"),
-    (Receding(candidates=1), "population must be at least 2"),
-    (Receding(rounds=0), "generations must be a positive integer"),
+    (Receding(candidates=1), "candidates must be an integer >= 2, got 1"),
+    (Receding(rounds=0), "rounds must be an integer >= 1, got 0"),
     (Receding(sigma=float("nan")), "sigma must be a finite number"),
     (1, "candidates a round must be an integer >= 2"),
     (-3, "candidates a round must be an integer >= 2"),

@@ -62,10 +62,11 @@ class Receding:
         if self.horizon < self.window:
             raise PromptError(f"refine: horizon ({self.horizon}) must be at least the window ({self.window}): "
                               "candidates are scored on the steps they would execute and after")
-        if isinstance(self.candidates, bool) or isinstance(self.rounds, bool):
-            raise PromptError("refine: candidates and rounds must be integers, not booleans")
-        search = self.search()
-        search.check()  # candidates (population >= 2), rounds, sigma, decay: named as refine's own settings
+        for name, least in (("candidates", 2), ("rounds", 1)):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
+                raise PromptError(f"refine: {name} must be an integer >= {least}, got {value!r}")
+        self.search().check()  # sigma and decay, named
 
 
 @dataclass
