@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import torch
 
 from fbcpr.core.errors import PromptError
 from fbcpr.inference.refine import Policy, Search, cross_entropy, project
@@ -150,6 +151,10 @@ def refine_track(policy: Policy, reference: np.ndarray, start: tuple[np.ndarray,
     window, horizon, k = settings.window, settings.horizon, settings.candidates
     n_windows = -(-steps // window)
     batches = _Batches(policy, steps + horizon + 1, num_threads)
+    # the batched envs carry the parallelism; a round's forward pass is a few small matmuls, which more torch
+    # threads only slow down (on 2 cores, 6-20x per call, spinning against the simulation's threads)
+    torch_threads = torch.get_num_threads()
+    torch.set_num_threads(1)
     try:
         single = batches.env(1)
         first_obs, info = single.reset(options={"qpos": qpos0, "qvel": qvel0})
@@ -223,6 +228,7 @@ def refine_track(policy: Policy, reference: np.ndarray, start: tuple[np.ndarray,
                 break
     finally:
         batches.close()
+        torch.set_num_threads(torch_threads)
     return TrackRefined(zs=zs, window_z=np.stack(window_z), window_z0=np.stack(window_z0),
                         plan_cost=np.asarray(cost), plan_cost0=np.asarray(cost0),
                         obs=np.stack(obs).astype(np.float32), qpos=np.stack(qpos), qvel=np.stack(qvel),
