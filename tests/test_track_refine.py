@@ -16,6 +16,7 @@ from fbcpr.inference.bfm import BFM
 from fbcpr.inference.track_refine import Receding, refine_track
 from fbcpr.metrics import d_smpl
 from humanoid_env.model import load_model
+from humanoid_env.render import renderer_available
 from humanoid_env.vector import VectorHumanoidEnv
 from motions.clip import from_qpos, save_clip
 
@@ -104,11 +105,16 @@ def test_bare_observations_cannot_be_refined(bfm, clip):
 
 
 def test_cli_refines_and_prints_its_cost(ckpt, clip, tmp_path):
-    path = save_clip(clip, tmp_path / "arm_rise.npz")
+    path, video = save_clip(clip, tmp_path / "arm_rise.npz"), tmp_path / "track.mp4"
     args = ["track", str(ckpt), str(path), "--refine", "3", "--refine-rounds", "1", "--refine-window", "4",
             "--refine-horizon", "5"]
-    res = CliRunner().invoke(app, args)
+    res = CliRunner().invoke(app, args + (["--video", str(video)] if renderer_available() else []))
     assert res.exit_code == 0, res.output
+    if renderer_available():  # the states the search executed, rendered beside the reference
+        import imageio.v2 as imageio
+
+        frames = imageio.mimread(video)
+        assert len(frames) == 11  # the first state and one per step
     assert "(refined)" in res.output and "11 / 11" in res.output and "MPJPE" in res.output
     line = re.search(r"refinement cost: ([\d.]+) s of compute for ([\d.]+) s of\s+motion, ([\d.]+) s per second",
                      res.output)
