@@ -41,6 +41,16 @@ def d_smpl(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(pose_part(a, "d_smpl") - pose_part(b, "d_smpl"), axis=-1)
 
 
+def mpjpe(agent: np.ndarray, reference: np.ndarray) -> float:
+    """Mean per-joint position error in metres of two time-aligned trajectories (T, 358 or 214): the distance
+    between each non-root body's position relative to the pelvis (heading frame), averaged over bodies and steps."""
+    a, r = pose_part(agent, "mpjpe"), pose_part(reference, "mpjpe")
+    if a.ndim != 2 or a.shape != r.shape or len(a) == 0:
+        raise InputError(f"mpjpe: trajectories must be non-empty (T, D) of equal shape, got {a.shape} and {r.shape}")
+    diff = (a[:, BODY_POS] - r[:, BODY_POS]).reshape(len(a), -1, 3)
+    return float(np.linalg.norm(diff, axis=-1).mean())
+
+
 def goal_success(dist: np.ndarray, beta: float = GOAL_BETA) -> np.ndarray | np.float64:
     """1 where the goal was reached (d <= beta) at any step; `dist` is (..., T) over an episode (a scalar for one)."""
     return (np.asarray(dist) <= beta).any(axis=-1).astype(np.float64)

@@ -271,31 +271,90 @@ def track_command(
     model: str | None = typer.Option(None, "--model", help=MODEL_HELP),
     video: Path | None = typer.Option(None, "--video", help=VIDEO_HELP + " Agent left, reference right, labelled."),
     device: str = typer.Option("cpu", "--device", metavar=DEVICE, help="torch device."),
+    refine: int = typer.Option(0, "--refine", min=0, help="Refine the z's by a receding-horizon search with the "
+                               "simulator, this many candidate z's a round (one batch of envs); 0: zero-shot. The "
+                               "cost is printed as seconds of compute per second of motion."),
+    rounds: int = typer.Option(3, "--refine-rounds", min=1, help="Search rounds per window, each narrowing around "
+                               "the best candidates of the last."),
+    window: int = typer.Option(8, "--refine-window", min=1, help="Steps executed per window before searching again."),
+    horizon: int = typer.Option(24, "--refine-horizon", min=1, help="Steps each candidate is rolled out and scored "
+                                "(at least the window: it judges where a candidate leaves the body)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the search's candidate draws."),
 ) -> None:
-    """Track a clip with one z per step and print tracking success (d_smpl <= 0.5 throughout) and EMD.
+    """Track a clip with one z per step and print tracking success (d_smpl <= 0.5 throughout), EMD and the
+    per-joint position error, next to a body frozen in the clip's first pose.
 
-    CKPT is a BFM (z's from ER_FB of the next states) or an NPMP checkpoint (z's from its encoder)."""
-    from fbcpr.metrics import d_smpl, emd, tracking_success
+    CKPT is a BFM (z's from ER_FB of the next states) or an NPMP checkpoint (z's from its encoder); --refine needs
+    a BFM."""
+    from fbcpr.eval.runner import hold_first_pose
+    from fbcpr.inference.bfm import BFM
+    from fbcpr.inference.track_refine import Receding
+    from fbcpr.metrics import d_smpl, emd, mpjpe, tracking_success
 
     ckpt, clip_path = model_and(args, "CLIP")
-
+    settings = Receding(candidates=refine, rounds=rounds, window=window, horizon=horizon, seed=seed)
+    if refine:
+        settings.check()  # before any model is loaded or frame simulated
     if video is not None:
         require_renderer()
     from fbcpr.inference.agents import load_tracker
 
     clip = _load_clip(clip_path)
     agent = load_tracker(choose_model(ckpt, model), device)  # a BFM (ER_FB latents) or an NPMP (its encoder's latents)
-    zs = agent.track_z(clip)
-    ep = rollout(agent, zs, start=(clip.qpos[0], clip.qvel[0]), video=video is not None, reference=clip,
-                 label=f"track {clip.name}")
+    title = f"track {clip.name}" + (" (refined)" if refine else "")
+    refined = None
+    if refine:
+        if not isinstance(agent, BFM):
+            raise typer.BadParameter("--refine searches a BFM's z's; this checkpoint is not a BFM")
+        with progress() as bar:
+            task = bar.add_task("refine, windows", total=-(-(clip.n_frames - 1) // window))
+            zs0 = agent.prompt.track(clip)
+            from fbcpr.inference.track_refine import refine_track
+
+            refined = refine_track(agent, clip.obs, (clip.qpos[0], clip.qvel[0]), zs0, settings,
+                                   on_window=lambda done, total: bar.update(task, completed=done))
+        ep = Episode(obs=list(refined.obs), qpos=list(refined.qpos), qvel=list(refined.qvel),
+                     diverged_at=refined.diverged_at)
+        if video is not None:
+            ep.frames = replay_frames(refined.qpos, refined.qvel, clip)
+    else:
+        ep = rollout(agent, agent.track_z(clip), start=(clip.qpos[0], clip.qvel[0]), video=video is not None,
+                     reference=clip, label=title)
     states = np.stack(ep.obs)
-    ref = clip.obs[: len(states)]
-    success = ep.diverged_at is None and tracking_success(states, ref)
+    ref, floor = clip.obs[: len(states)], hold_first_pose(clip)
+    success = ep.diverged_at is None and len(states) == clip.n_frames and tracking_success(states, ref)
     rows = [("frames", f"{len(states)} / {clip.n_frames}"), ("tracking success", "yes" if success else "no"),
-            ("EMD", f"{emd(states, clip.obs):.3f}"), ("mean d_smpl", f"{d_smpl(states, ref).mean():.3f}")]
-    console.print(_table(f"track {clip.name}", rows + _diverged_row(ep)))
+            ("EMD", f"{emd(states, clip.obs):.3f}"),
+            ("EMD, body frozen in the first pose", f"{emd(floor, clip.obs):.3f}"),
+            ("MPJPE, pelvis-relative (m)", f"{mpjpe(states, ref):.3f}"),
+            ("MPJPE, body frozen in the first pose", f"{mpjpe(floor[: len(states)], ref):.3f}"),
+            ("mean d_smpl", f"{d_smpl(states, ref).mean():.3f}")]
+    if refined is not None:
+        rows += [("planning cost, B-given -> kept (mean d_smpl)",
+                  f"{refined.plan_cost0.mean():.3f} -> {refined.plan_cost.mean():.3f}")]
+    console.print(_table(title, rows + _diverged_row(ep)))
+    if refined is not None:
+        console.print(f"refinement cost: {refined.seconds:.1f} s of compute for {refined.motion_seconds:.1f} s of "
+                      f"motion, {refined.cost:.1f} s per second of motion ({refined.cpu_cost:.1f} s of processor "
+                      f"time per second; {refine} candidates x {rounds} rounds, horizon {horizon}, window {window}, "
+                      f"{refined.rollouts} rollouts)", highlight=False)
     if video is not None:
         write_frames(ep, video)
+
+
+def replay_frames(qpos: np.ndarray, qvel: np.ndarray, clip: Any) -> list[np.ndarray]:
+    """Tracking video frames of states already simulated (agent | reference), rendered without stepping again."""
+    from types import SimpleNamespace
+
+    from humanoid_env.env import HumanoidEnv
+
+    env = HumanoidEnv(render_mode="rgb_array")
+    try:
+        agent = _reference_renderer(env, SimpleNamespace(qpos=qpos, qvel=qvel, n_frames=len(qpos)))
+        reference = _reference_renderer(env, clip)
+        return [side_by_side(agent(t), reference(t)) for t in range(len(qpos))]
+    finally:
+        env.close()
 
 
 @cli_errors

@@ -181,14 +181,19 @@ def goal_suite(agent: Agent, goals: Sequence[str], episodes: int, init: tuple[np
     return out
 
 
-def hold_first_pose_emd(clip: Any) -> float:
-    """The tracking floor of a body frozen in the clip's first pose (its first qpos, at rest, every step): an EMD
-    no better than this tracks nothing the clip does after its first frame."""
+def hold_first_pose(clip: Any) -> np.ndarray:
+    """(T, 358) observations of a body frozen in the clip's first pose (its first qpos, at rest, every step): the
+    tracking floor, since a trajectory no closer than this tracks nothing the clip does after its first frame."""
     from humanoid_env.model import load_model
     from humanoid_env.observation import observe
 
     frozen = observe(load_model(), clip.qpos[:1], np.zeros_like(clip.qvel[:1]))
-    return emd(np.repeat(frozen, clip.n_frames, axis=0), clip.obs)
+    return np.repeat(frozen, clip.n_frames, axis=0)
+
+
+def hold_first_pose_emd(clip: Any) -> float:
+    """The EMD of the first-pose floor (`hold_first_pose`) to the clip."""
+    return emd(hold_first_pose(clip), clip.obs)
 
 
 def tracking_suite(agent: Agent, clips: Sequence[Any], progress: Progress | LineProgress, batch: int = 32,

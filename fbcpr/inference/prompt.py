@@ -11,7 +11,8 @@ sqrt(d) sphere that the policy was trained on:
   on the reward-inference buffer, r(s') = exp(-d_smpl(s', g) / 2), inferred as a reward is (`states`): states
   the model visited, where B(g) of a motionless pose is not; or the projected sum of both (`mix`);
 - track: z_t ∝ Σ_{j=t+1}^{t+L} B(s_j), the ER_FB encoding of the next L states (L = training sequence length),
-  the window shrinking at the end of the clip;
+  the window shrinking at the end of the clip; `refine=N` searches nearby z's with the simulator
+  (`fbcpr.inference.track_refine`);
 - imitate: ER_FB of the whole clip (mean of B over its states);
 - mix: a weighted sum of zs, projected again.
 Rewards compose before inference through the reward registry's `a*b` / `a+b` names.
@@ -20,19 +21,19 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Protocol, Union, get_args, overload
+from typing import TYPE_CHECKING, Literal, Protocol, Union, cast, get_args, overload
 
 import numpy as np
 import torch
 
 from fbcpr.core.errors import PromptError
+from fbcpr.inference.reward_spec import RewardSpec, reward_fn
+from fbcpr.inference.track_refine import Receding, TrackRefined
 from fbcpr.nn.latents import TEMPERATURE, reward_weights, tracking_sums
 
 if TYPE_CHECKING:
     from motions.clip import Clip
 
-#: A reward given by registry name (e.g. "jump-2", "move-ego-0-2*crouch-0") or as a RewardFn-like callable.
-RewardSpec = Union[str, Callable[..., np.ndarray]]
 #: A goal given by name, as a qpos (76,) pose, or as an observation (358,).
 GoalSpec = Union[str, np.ndarray, torch.Tensor, Sequence[float]]
 #: A motion given as a Clip, a clip file path, a built-in clip name, or an (T, 358) observation sequence.
@@ -169,11 +170,38 @@ class Prompt:
         return self._project(torch.as_tensor(z_pose) + torch.as_tensor(z_states))
 
     # ---------------------------------------------------------------------------------------- motions
-    def track(self, motion: MotionSpec) -> np.ndarray:
-        """(T-1, d): one z per step t, the ER_FB of the next L states s_{t+1..t+L}, clipped at the clip end."""
-        obs = motion_observations(motion, self.bfm.obs_dim, min_length=2)
-        b = self.bfm.backward(obs, as_tensor=True).double()
-        return self._project(tracking_sums(b, self.bfm.sequence_length)[:-1])
+    def track(self, motion: MotionSpec, refine: int | Receding = 0, num_threads: int | None = None) -> np.ndarray:
+        """(T-1, d): one z per step t, the ER_FB of the next L states s_{t+1..t+L}, clipped at the clip end.
+
+        `refine` N > 0 (or a `Receding` of settings) refines them by a receding-horizon search with the simulator,
+        N candidates a round, from the clip's first state (`fbcpr.inference.track_refine`): a clip is needed then,
+        not bare observations. `track_refined` returns the whole record (trajectory, costs, compute time)."""
+        if not isinstance(refine, Receding) and refine == 0:
+            obs = motion_observations(motion, self.bfm.obs_dim, min_length=2)
+            b = self.bfm.backward(obs, as_tensor=True).double()
+            return self._project(tracking_sums(b, self.bfm.sequence_length)[:-1])
+        return self.track_refined(motion, refine, num_threads).zs
+
+    def track_refined(self, motion: MotionSpec, refine: int | Receding | None = None,
+                      num_threads: int | None = None) -> TrackRefined:
+        """The B-given tracking z's refined by rollouts from the clip's first state; `refine` is the number of
+        candidates a round or a `Receding` of all the settings (None: its defaults; `fbcpr.inference.track_refine`)."""
+        from fbcpr.inference.refine import Policy
+        from fbcpr.inference.track_refine import refine_track
+
+        settings = Receding() if refine is None else refine if isinstance(refine, Receding) else None
+        if settings is None:
+            if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 2:
+                raise PromptError(f"refine: the number of candidates a round must be an integer >= 2 (or 0 for "
+                                  f"zero-shot), got {refine!r}")
+            settings = Receding(candidates=int(refine))
+        clip = load_motion(motion) if isinstance(motion, (str, Path)) else motion
+        if not (hasattr(clip, "qpos") and hasattr(clip, "qvel")):
+            raise PromptError("refine: tracking is refined from the clip's first state, so it needs a Clip or a clip "
+                              "file, not bare observations")
+        clip = cast("Clip", clip)
+        policy = cast(Policy, self.bfm)  # a BFM, which acts as well as it prompts
+        return refine_track(policy, clip.obs, (clip.qpos[0], clip.qvel[0]), self.track(clip), settings, num_threads)
 
     def imitate(self, motion: MotionSpec) -> np.ndarray:
         """One z for a whole motion: ER_FB, the mean of B over all its states."""
@@ -231,20 +259,6 @@ def goal_reward(goal_obs: np.ndarray, scale: float = GOAL_REWARD_SCALE) -> Calla
         return np.exp(-d_smpl(next_obs, goal_obs) / scale)
 
     return goal_proximity_reward
-
-
-def reward_fn(task: RewardSpec) -> tuple[Callable[..., np.ndarray], str]:
-    """The RewardFn for a registry name (combined names included) or a user callable, with a label for errors."""
-    if callable(task):
-        return task, getattr(task, "__name__", repr(task))
-    if not isinstance(task, str) or not task.strip():
-        raise PromptError(f"a reward is a task name or a callable, got {task!r}")
-    from humanoid_env.tasks import get_reward
-
-    try:
-        return get_reward(task.strip()), task.strip()
-    except (KeyError, ValueError) as err:
-        raise PromptError(err.args[0] if err.args else str(err)) from err  # the registry's message names the task
 
 
 def goal_observation(target: GoalSpec, obs_dim: int) -> np.ndarray:

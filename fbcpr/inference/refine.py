@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from fbcpr.core.errors import PromptError
-from fbcpr.inference.prompt import RewardSpec, reward_fn
+from fbcpr.inference.reward_spec import RewardSpec, reward_fn
 from fbcpr.nn.networks import project_sphere
 
 #: The most envs one generation may step at once (population x starts): ~0.1 MB of simulation state each.
@@ -35,8 +35,11 @@ Objective = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 class Policy(Protocol):
     """What refinement needs of a model: a z-conditioned policy and the env's action mapping."""
 
-    z_dim: int
-    action_mapping: str
+    @property
+    def z_dim(self) -> int: ...
+
+    @property
+    def action_mapping(self) -> str: ...
 
     def act(self, obs: np.ndarray, z: np.ndarray, mean: bool = True) -> Any: ...
 
