@@ -27,28 +27,13 @@ from tracking_split import clip_file, read_split  # the sibling script: the spli
 
 from fbcpr import BFM
 from fbcpr.cli.prompt_cmd import rollout
-from fbcpr.eval.runner import hold_first_pose_emd
-from fbcpr.metrics import emd
+from fbcpr.eval.runner import hold_first_pose, hold_first_pose_emd
+from fbcpr.metrics import emd, mpjpe
 from humanoid_env.env import FALLEN_HEIGHT
-from humanoid_env.model import CONTROL_HZ, load_model
-from humanoid_env.observation import observe
+from humanoid_env.model import CONTROL_HZ
 from motions.clip import Clip, load_clip
 
 MAX_LAG = 30  # steps: 1 s
-
-
-def body_positions(obs: np.ndarray) -> np.ndarray:
-    """(T, 23, 3) body positions relative to the pelvis, heading frame, from observations."""
-    return obs[:, 1:70].reshape(len(obs), 23, 3)
-
-
-def mpjpe(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.linalg.norm(body_positions(a) - body_positions(b), axis=-1).mean())
-
-
-def frozen_obs(clip: Clip) -> np.ndarray:
-    """The clip's first pose held still for as long as the clip."""
-    return np.repeat(observe(load_model(), clip.qpos[:1], np.zeros_like(clip.qvel[:1])), clip.n_frames, axis=0)
 
 
 def best_lag(agent: np.ndarray, ref: np.ndarray) -> tuple[int, float]:
@@ -63,7 +48,7 @@ def diagnose(bfm: BFM, clip: Clip, seed: int) -> dict:
     ep = rollout(bfm, zs, seed=seed, start=(clip.qpos[0], clip.qvel[0]), label=f"track {clip.name}")
     n = min(len(ep.obs), clip.n_frames)
     agent, ref, qpos = np.stack(ep.obs)[:n], clip.obs[:n], np.stack(ep.qpos)[:n]
-    frozen = frozen_obs(clip)[:n]
+    frozen = hold_first_pose(clip)[:n]
     err, floor = mpjpe(agent, ref), mpjpe(frozen, ref)
     down = (agent[:, 0] < FALLEN_HEIGHT) & (ref[:, 0] >= FALLEN_HEIGHT)
     fell_at = int(np.argmax(down)) if down.any() else None
