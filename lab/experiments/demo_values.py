@@ -51,7 +51,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as out:
         tr = Trainer(cfg, Path(out), progress=False, init_from=args.checkpoint)
         try:
-            model, agent, demos = tr.agent.model.eval(), tr.agent, tr.demos
+            model, agent, demos = tr.agent.model.eval(), tr.agent, tr.learner.demos
             lengths = np.diff(np.flatnonzero(np.r_[True, ~demos["demo_next"].numpy()[:-1], True]))
             if len(set(lengths)) != 1:
                 raise SystemExit("the demonstrations differ in length; this reads them as one (demos, T) table")

@@ -47,8 +47,8 @@ def test_contact_sheet_rolls_out_a_saved_z(tmp_path):
     bfm = BFM.load(tiny_humanoid_checkpoint(tmp_path, "tiny", seed=1))
     path = tmp_path / "z.npy"
     np.save(path, 3.0 * np.ones(bfm.z_dim, np.float32))
-    zs, start = sheet.prompt_zs(bfm, f"z:{path}", 4)
-    assert zs.shape == (4, bfm.z_dim) and start is None
+    zs, start, clip = sheet.prompt_zs(bfm, f"z:{path}", 4)
+    assert zs.shape == (4, bfm.z_dim) and start is None and clip is None
     np.testing.assert_allclose(zs[0], np.ones(bfm.z_dim), rtol=1e-6)  # projected onto the sqrt(d) sphere
     np.save(path, np.ones(bfm.z_dim + 1, np.float32))
     with pytest.raises(SystemExit, match=r"z\.npy must hold one finite z"):
