@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from fbcpr.cli.imitate_cmd import imitation_config
+from fbcpr.core.config import data_dir
 from fbcpr.core.protocols import EnvBundle
 from fbcpr.envs.bundle import make_env
 from fbcpr.eval.agents import RandomAgent
@@ -35,8 +36,8 @@ from fbcpr.metrics import imitation_scores
 from fbcpr.eval.upright import seconds_upright
 from fbcpr.train.trainer import Trainer
 
-ROOT = Path(__file__).resolve().parents[1]
-CLIPS = ROOT / "data" / "clips" / "deepmimic"
+ROOT = Path(__file__).resolve().parents[2]  # the repository root: runs/ and docs/img/ go there
+CLIPS = data_dir() / "clips" / "deepmimic"  # where `fbcpr motions import` puts them
 STARTS, HORIZON = 8, 150
 
 

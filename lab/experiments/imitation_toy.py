@@ -24,20 +24,20 @@ import torch
 
 import yaml
 
-from fbcpr.core.config import config_from_dict
+from fbcpr.core.config import config_from_dict, find_config
 from fbcpr.core.schema import Config
 from fbcpr.eval.toy import imitation_metrics, task_return
 from fbcpr.train.trainer import Trainer
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository root: runs/ and docs/img/ go there
 EVAL_SEED = 123
-IMITATION = {"amp": "amp-toy.yaml", "near": "near-toy.yaml", "virl-state": "virl-toy.yaml",
-             "virl-video": "virl-toy-video.yaml"}
+IMITATION = {"amp": "amp-toy", "near": "near-toy", "virl-state": "virl-toy",
+             "virl-video": "virl-toy-video"}
 
 
 def load(config: str, overrides: tuple[str, ...]) -> Config:
     """A shipped toy config with `dotted.key=value` overrides (YAML values), validated like any config."""
-    data = yaml.safe_load((ROOT / "configs" / config).read_text())
+    data = yaml.safe_load(find_config(config).read_text())
     for item in overrides:
         key, _, value = item.partition("=")
         *path, last = key.split(".")
@@ -71,7 +71,7 @@ def main() -> None:
     results = []
 
     if "td3" in only:
-        td3, cost = train("td3-toy.yaml", out / "td3", args.seed)
+        td3, cost = train("td3-toy", out / "td3", args.seed)
         task = td3.cfg.agent.reward.task
         value = task_return(td3.agent.model.eval(), task, np.random.default_rng(EVAL_SEED), prompt=False)
         random = task_return(None, task, np.random.default_rng(EVAL_SEED), prompt=False)

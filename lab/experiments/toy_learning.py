@@ -15,18 +15,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fbcpr.core.config import load_config
+from fbcpr.core.config import find_config, load_config
 from fbcpr.core.schema import Config
 from fbcpr.eval.toy import evaluate
 from fbcpr.train.trainer import Trainer
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository root: runs/ and docs/img/ go there
 
 
 def run_seed(seed: int, steps: int | None, out: Path, cfg: Config | None = None) -> dict:
     """Train `cfg` (default fbcpr/configs/toy.yaml) with one seed, evaluating every eval_every env steps; the history of
     one run."""
-    cfg = cfg or load_config(ROOT / "configs" / "toy.yaml")
+    cfg = cfg or load_config(find_config("toy"))
     cfg.train.seed = seed
     if steps:
         cfg.train.total_env_steps = steps

@@ -21,7 +21,7 @@ from fbcpr.core.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E4
 from fbcpr.eval.toy import demo_rollouts, imitation_metrics  # noqa: E402
 from fbcpr.envs.toy import demo_paths  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository root: runs/ and docs/img/ go there
 METHODS = ("random", "amp", "virl-state", "virl-video")
 EVAL_SEED = 123
 
