@@ -24,7 +24,7 @@ from fbcpr.core.config import find_config, load_config  # noqa: E402
 from fbcpr.rewards.near.reward import NEARReward  # noqa: E402
 from fbcpr.envs import toy as pm  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]  # the repository root: runs/ and docs/img/ go there
+ROOT = Path(__file__).resolve().parents[2]  # the repository root: figures go to its docs/img/
 GRID, DIRECTIONS = 41, 16
 
 

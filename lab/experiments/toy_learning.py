@@ -20,7 +20,7 @@ from fbcpr.core.schema import Config
 from fbcpr.eval.toy import evaluate
 from fbcpr.train.trainer import Trainer
 
-ROOT = Path(__file__).resolve().parents[2]  # the repository root: runs/ and docs/img/ go there
+ROOT = Path(__file__).resolve().parents[2]  # the repository root: figures go to its docs/img/
 
 
 def run_seed(seed: int, steps: int | None, out: Path, cfg: Config | None = None) -> dict:
@@ -50,7 +50,7 @@ def run_seed(seed: int, steps: int | None, out: Path, cfg: Config | None = None)
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=None)
-    ap.add_argument("--out", default=str(ROOT / "runs" / "toy-bench"))
+    ap.add_argument("--out", default="runs/toy-bench")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--plot", default=str(ROOT / "docs" / "img" / "toy_learning.png"))
     args = ap.parse_args()

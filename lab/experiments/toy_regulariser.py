@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from toy_learning import ROOT, run_seed  # the sibling script (lab/experiments/ is on sys.path when run)
+from toy_learning import run_seed  # the sibling script (lab/experiments/ is on sys.path when run)
 from fbcpr.core.config import find_config, load_config
 from fbcpr.eval.toy import evaluate
 
@@ -57,7 +57,7 @@ def main() -> None:
     ap.add_argument("--eval-every", type=int, default=10_000)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--regularisers", nargs="+", default=["near", "discriminator"])
-    ap.add_argument("--out", default=str(ROOT / "runs" / "toy-reg"))
+    ap.add_argument("--out", default="runs/toy-reg")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
