@@ -43,6 +43,8 @@ def run(config: Path, ranks: int, steps: int, warmup: int, out: Path) -> dict:
     tc = cfg.train
     tc.total_env_steps, tc.warmup_steps = steps, warmup
     tc.checkpoint_every = tc.priority_every = tc.eval_every = 0
+    tc.eval_upright, tc.eval_tasks, tc.eval_at_start, tc.keep_best = 0, [], False, ""  # no evaluations: none of theirs
+    tc.keep_best_requires = {}
     tc.log_every, tc.reward_buffer_size, tc.save_buffer = 10**9, 0, False
     tc.buffer_capacity = min(tc.buffer_capacity, 2 * steps)
     path = out / f"{config.stem}.yaml"

@@ -20,7 +20,12 @@ def read_npz(path: Path, keys: tuple[str, ...], error: type[Exception], what: st
     `error` naming the file for anything that is not a plain-array .npz of sane size. `what` names the expected
     kind of file ("clip archive", "AMASS .npz") in messages; `max_rows` bounds every array's frame count."""
     check_input_file(path, error)
-    if not zipfile.is_zipfile(path):
+    try:  # opened here: zipfile.is_zipfile reads an unreadable file as "not a zip" and hides why
+        with open(path, "rb") as fh:
+            is_zip = zipfile.is_zipfile(fh)
+    except OSError as err:
+        raise error(f"{path}: cannot be read ({err.strerror or err})") from None
+    if not is_zip:
         raise error(f"{path}: not a valid {what} (not a zip archive)")
     out: dict[str, np.ndarray] = {}
     try:

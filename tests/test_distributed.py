@@ -1,5 +1,6 @@
 """Data-parallel training (fbcpr.nn.distributed) on 2 CPU ranks over gloo: identical replicas, the split update equals
 the single-process one, exact normaliser merge, sharded priorities, and a killed rank ending the run cleanly."""
+import json
 import os
 import signal
 import socket
@@ -249,3 +250,21 @@ def test_a_killed_rank_ends_the_others_with_a_clear_error_and_keeps_the_checkpoi
     latest = run / "checkpoints" / (run / "checkpoints" / "latest").read_text().strip()
     ck = load_checkpoint(latest)
     assert ck.trainer_state()[1]["world_size"] == 2 and ck.trainer_state()[1]["env_steps"] % 32 == 0
+
+
+def test_rank_0_says_what_a_torchrun_run_runs_and_the_summary_records_the_world_size(tmp_path):
+    cfg = fbcpr_cfg(num_envs=2)  # 16 env steps a phase: 2 ranks x 2 envs x 4 steps
+    (tmp_path / "cfg.yaml").write_text(dump_config(cfg))
+    port, run = free_port(), tmp_path / "run"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    procs = [subprocess.Popen([sys.executable, "-m", "fbcpr", "train", str(tmp_path / "cfg.yaml"), "--out", str(run),
+                               "--no-progress"], env={**env, **rank_env(r, 2, port)}, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for r in (0, 1)]
+    logs = [p.communicate(timeout=120) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], logs
+    plan = ("data-parallel: 2 processes (gloo), each with 2 envs and a batch of 16 (4 envs and 32 samples per update "
+            "in all); 3 updates per 16 env steps over all processes: a global update-to-data ratio of 0.188")
+    assert plan in logs[0][1] and "data-parallel" not in logs[1][1]
+    assert json.loads((run / "summary.json").read_text())["world_size"] == 2
+    latest = run / "checkpoints" / (run / "checkpoints" / "latest").read_text().strip()
+    assert load_checkpoint(latest).trainer_state()[1]["world_size"] == 2

@@ -1,44 +1,18 @@
 """The README's shell commands run, in order, in a fresh folder, as `tests/test_doc_snippets.py` runs its Python:
 each `fbcpr` command with extra options that keep it short (fewer steps and episodes; a later option wins over
-the README's), and only the commands below in SKIP left out, each with its reason."""
+the README's), and only the commands in SKIP (tests/doc_commands.py) left out, each with its reason."""
 from __future__ import annotations
 
-import re
 import shlex
-from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
-from fbcpr.cli.app import app
+from doc_commands import ROOT, SHORT, SKIP, bash_commands, run_fbcpr, short_words, without_video
 
-README = Path(__file__).resolve().parents[1] / "README.md"
-BLOCK = re.compile(r"```bash\n(.*?)```", re.S)
-
-#: Commands not run here, by how they start, and why.
-SKIP = {
-    "pip install": "installs packages (network); the tests run in the installed environment",
-    "python -m pytest": "the test suite itself",
-    "fbcpr play": "serves its page until stopped (tests/test_play_browser.py runs it in a browser)",
-    "fbcpr motions import path/to/": "the user's own motion files, which a fresh clone does not have (the import "
-                                     "itself is tested in tests/test_motions_cli.py)",
-}
-#: Options appended to a command (by its first words) so that it runs in seconds.
-SHORT = {
-    "prompt": ["--steps", "5"],
-    "eval": ["--episodes", "1", "--steps", "5"],
-    # the behaviour checks read an episode's last second and half: two families of 2 s
-    "eval --suite behaviours": ["--episodes", "1", "--steps", "60", "--tasks", "stand,get_up"],
-    "train": ["--steps", "1", "--no-progress"],
-    "export": ["--reward-samples", "200"],
-    "export runs/cpu runs/cpu-onnx --onnx": [],  # no reward states in an ONNX export: nothing to shorten
-    # the shipped NEAR config pretrains its energy network for 2,000 steps first (half a minute here): a tiny one
-    "imitate": ["--steps", "1", "--no-progress", "--config", "tiny-near.yaml"],
-    "npmp distill": ["--steps", "2", "--rollouts", "1", "--max-steps", "10", "--preset", "tiny"],
-}
-#: Commands whose `--video FILE` is left out here: rendering a 10 s rollout takes most of a minute on 2 cores
-#: (videos are tested on a few frames in tests/test_cli_prompt.py; the README's prompt keeps its video here).
-NO_VIDEO = ("track", "timeline")
+README = ROOT / "README.md"
+#: The README trains NEAR with `fbcpr imitate`: the shipped NEAR config pretrains its energy network for 2,000
+#: steps first (half a minute here), so a tiny one stands in for it.
+README_SHORT = {**SHORT, "imitate": ["--steps", "1", "--no-progress", "--config", "tiny-near.yaml"]}
 TINY_NEAR = """algorithm: td3
 model: {hidden_dim: 32, hidden_layers: 1}
 agent:
@@ -54,27 +28,7 @@ train: {num_envs: 4, warmup_steps: 100, rollout_steps: 40, updates_per_rollout: 
 
 def readme_commands() -> list[str]:
     """Every command line of the README's bash blocks, in order, comments dropped."""
-    lines = []
-    for block in BLOCK.findall(README.read_text()):
-        for line in block.splitlines():
-            line = line.split(" #")[0].strip()
-            if line and not line.startswith("#"):
-                lines.append(line)
-    return lines
-
-
-def without_video(words: list[str]) -> list[str]:
-    if words[1] not in NO_VIDEO or "--video" not in words:
-        return words
-    i = words.index("--video")
-    return words[:i] + words[i + 2:]
-
-
-def short_options(words: list[str]) -> list[str]:
-    for key in sorted(SHORT, key=len, reverse=True):
-        if " ".join(words[1:]).startswith(key):
-            return SHORT[key]
-    return []
+    return bash_commands(README)
 
 
 def test_the_readme_lists_commands_and_every_skip_is_still_there():
@@ -88,15 +42,14 @@ def test_readme_commands_run_in_order(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("FBCPR_DATA", raising=False)  # the data directory is ./data, as on a fresh clone
     (tmp_path / "tiny-near.yaml").write_text(TINY_NEAR)
-    runner = CliRunner()
     ran = []
     for command in readme_commands():
         if any(command.startswith(prefix) for prefix in SKIP):
             continue
         words = shlex.split(command)
         assert words[0] == "fbcpr", f"a README command that is neither run nor skipped: {command}"
-        res = runner.invoke(app, without_video(words)[1:] + short_options(words))
-        assert res.exit_code == 0, f"`{command}` failed:\n{res.output}"
+        code, output = run_fbcpr(short_words(without_video(words[1:]), README_SHORT))
+        assert code == 0, f"`{command}` failed:\n{output}"
         ran.append(words[1])
     assert {"prompt", "track", "timeline", "eval", "train", "export", "imitate", "npmp"} <= set(ran)
     assert (tmp_path / "data" / "clips" / "mixed" / "synthetic_walk.npz").is_file()
@@ -104,8 +57,13 @@ def test_readme_commands_run_in_order(tmp_path, monkeypatch):
     assert (tmp_path / "runs" / "near" / "checkpoints").is_dir() and (tmp_path / "runs" / "npmp").is_dir()
 
 
-@pytest.mark.parametrize("line, extra", [("fbcpr eval --quick", ["--episodes", "1", "--steps", "5"]),
-                                         ("fbcpr npmp distill pretrained", SHORT["npmp distill"]),
-                                         ("fbcpr tasks", [])])
-def test_short_options_match_the_command(line, extra):
-    assert short_options(shlex.split(line)) == extra
+@pytest.mark.parametrize("line, short", [
+    ("fbcpr eval --quick", "eval --quick --episodes 1 --steps 5"),
+    ("fbcpr npmp distill pretrained", "npmp distill pretrained " + " ".join(SHORT["npmp distill"])),
+    ("fbcpr tasks", "tasks"),
+    ("fbcpr eval --suite behaviours --tasks jump --episodes 4",
+     "eval --suite behaviours --tasks stand,get_up --episodes 1 --steps 60"),
+    ("fbcpr train small --resume --more-steps 100000", "train small --resume --steps 1 --no-progress"),
+])
+def test_short_options_match_the_command(line, short):
+    assert short_words(shlex.split(line)[1:]) == short.split()

@@ -8,7 +8,16 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from fbcpr.cli.common import MODEL_HELP, choose_model, cli_errors, comma_names, console, err_console, given
+from fbcpr.cli.common import (
+    MODEL_HELP,
+    checkpoint_sources,
+    choose_model,
+    cli_errors,
+    comma_names,
+    console,
+    err_console,
+    given,
+)
 
 if TYPE_CHECKING:
     import numpy as np
@@ -70,10 +79,13 @@ def eval_command(
                                "`fbcpr prompt --refine`; 10 takes about 10 minutes a family on one CPU core)."),
 ) -> None:
     """Evaluate an agent zero-shot on reward tasks, goal poses and motion tracking (paper App. C.3)."""
+    from fbcpr.core.paths import check_output_folder
     from fbcpr.eval.report import print_report
     from fbcpr.eval.runner import evaluate
     from fbcpr.inference.agents import make_agent
 
+    check_output_folder(out, "--out", checkpoint_sources("CKPT", choose_model(ckpt, model))
+                        + ([("--motions", motions)] if motions is not None else []))
     names = comma_names(tasks) or None
     if quick:
         if names is not None:

@@ -84,8 +84,11 @@ def imitate_command(
     checkpoint)."""
     import numpy as np
 
+    from fbcpr.core.paths import check_output_folder
     from fbcpr.train.trainer import Trainer
 
+    inputs = [("DEMO", demo)] if Path(demo).expanduser().exists() else []
+    check_output_folder(out, "--out", inputs + ([("--config", config)] if config is not None else []))
     cfg, kind = imitation_config(demo, reward, config)
     cfg.train.seed = seed
     if steps is not None:

@@ -210,9 +210,11 @@ def synthetic_cmd(
     clips, so that a training run's demonstrations and MoCap init also hold standing states."""
     from dataclasses import replace
 
+    from fbcpr.core.paths import check_output_folder
     from motions.clip import save_clip
     from motions.synthetic import default_clips
 
+    check_output_folder(out, "--out")
     if not re.fullmatch(r"[A-Za-z0-9_-]*", prefix):
         raise typer.BadParameter("--prefix may only hold letters, digits, '_' and '-'")
     clips = [replace(c, name=f"{prefix}{c.name}") for c in default_clips()]

@@ -215,6 +215,10 @@ def prompt_command(
         raise typer.BadParameter("--refine applies to --reward and --goal: a clip has no objective to search on")
     if video is not None:
         require_renderer()
+    if save_z is not None:
+        from fbcpr.core.paths import check_output_file
+
+        check_output_file(save_z, "--save-z")
     bfm = _load(choose_model(ckpt, model), device)
     clip = None
     if reward is not None:

@@ -392,7 +392,12 @@ def pointed_checkpoint(root: Path, pointer: str = "latest") -> Path:
     """The checkpoint that `root/<pointer>` names (`latest`, or `best` with `train.keep_best`); CheckpointError naming
     the pointer when it is missing, empty, or points anywhere but a sibling checkpoint folder (a loop such as `.`
     or a pointer's own name included)."""
+    check_folder_link(root)
     file = root / pointer
+    if file.is_dir():
+        link = f" (a symbolic link to {os.readlink(file)})" if file.is_symlink() else ""
+        raise CheckpointError(f"{file}: a folder{link}; `{pointer}` must be a text file holding the name of a "
+                              "checkpoint folder beside it (e.g. step_0000100000), not the folder or a link to it")
     try:
         name = file.read_text().strip()
     except FileNotFoundError:
@@ -409,6 +414,20 @@ def pointed_checkpoint(root: Path, pointer: str = "latest") -> Path:
     if not name or name in (".", "..", *POINTERS) or "/" in name or os.sep in name:
         raise CheckpointError(f"{file}: must name a checkpoint folder beside it (e.g. step_0000100000), got {name!r}")
     return root / name
+
+
+def check_folder_link(path: Path) -> None:
+    """CheckpointError when `path` is a symbolic link that leads nowhere (a loop, or a missing target): reading
+    through it would only say that the files inside are missing."""
+    if not path.is_symlink() or path.exists():
+        return
+    try:
+        os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise CheckpointError(f"{path}: a symbolic link loop (it leads back to itself); it must be a checkpoint "
+                                  "folder, or a link to one") from None
+    raise CheckpointError(f"{path}: a symbolic link to {os.readlink(path)}, which does not exist")
 
 
 def latest_checkpoint(root: Path) -> Path:

@@ -41,3 +41,15 @@ def check_output_folder(out: str | Path, arg: str, sources: Iterable[tuple[str, 
             continue
         raise InputError(f"{arg}: {out} {how} {name} {src}; writing it would overwrite or mix with what is read "
                          f"from there (choose a folder apart from it)")
+
+
+def check_output_file(out: str | Path, arg: str) -> None:
+    """InputError naming `arg` (e.g. "--save-z") unless the file `out` can be created: its folder exists and it is
+    not itself a folder. Checked before the work, so a long command does not fail at its last write."""
+    out_path = Path(out).expanduser()
+    folder = out_path.parent
+    if out_path.is_dir():
+        raise InputError(f"{arg}: {out} is a folder; give a file path in it")
+    if not folder.is_dir():
+        why = "is not a folder" if os.path.lexists(folder) else "does not exist"
+        raise InputError(f"{arg}: {out}: the folder {folder} {why} (create it first, or choose another path)")

@@ -30,6 +30,7 @@ from fbcpr.core.checkpoint import (
     REWARD_KEYS,
     Checkpoint,
     CheckpointError,
+    check_folder_link,
     inconsistent_rows,
     latest_checkpoint,
     load_checkpoint,
@@ -431,6 +432,7 @@ def _latest_in_run(path: Path) -> Path:
     """A training run directory (or its checkpoints/ folder) stands for its latest checkpoint."""
     if (path / MANIFEST_FILE).exists():
         return path
+    check_folder_link(path / "checkpoints")
     for root in (path / "checkpoints", path):
         if os.path.lexists(root / "latest"):  # a symbolic link loop included: reading it says so
             return latest_checkpoint(root)

@@ -101,6 +101,9 @@ class Timeline:
         for i, (item, seconds) in enumerate(items, 1):  # all bounds first: no prompt runs for a timeline that fails
             label = "z" if isinstance(item, np.ndarray) else str(item)
             check_seconds(f"timeline segment {i} ({label})", seconds)
+            if seconds * fps < 1 - 1e-6:  # a whole control step would play, and the table would report less
+                raise PromptError(f"timeline segment {i} ({label}): {seconds:g} s is shorter than one control step "
+                                  f"(1/{fps:g} s); give at least {1 / fps:.4g} s")
             total += seconds
             if total > MAX_SECONDS:
                 raise PromptError(f"timeline segment {i} ({label}): the timeline would last {total:g} s, "

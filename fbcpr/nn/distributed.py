@@ -258,3 +258,13 @@ def setup(device: torch.device, timeout_s: float, backend: str = "auto") -> tupl
         if not dist.is_initialized():
             dist.init_process_group(backend, rank=rank, world_size=world, timeout=timedelta(seconds=timeout_s))
     return replicas, device
+
+
+def run_plan(replicas: Replicas, num_envs: int, batch_size: int, updates: int, env_steps: int) -> str:
+    """What a data-parallel run runs, in one line for rank 0 to print at its start, so that a log tells N processes
+    training one model from N copies of one run: `updates` updates per phase of `env_steps` global env steps."""
+    w = replicas.world_size
+    backend = dist.get_backend() if dist.is_initialized() else "none"
+    return (f"data-parallel: {w} processes ({backend}), each with {num_envs} envs and a batch of {batch_size} "
+            f"({w * num_envs} envs and {w * batch_size} samples per update in all); {updates} updates per "
+            f"{env_steps:,} env steps over all processes: a global update-to-data ratio of {updates / env_steps:.3g}")

@@ -116,6 +116,10 @@ class Trainer:
         # so a log gets the plain line every train.log_every env steps instead
         self.progress_enabled = progress and r.is_main and Console(stderr=True).is_terminal
         check_world_size(cfg, r.world_size)
+        if r.enabled and r.is_main:  # say what runs: N processes training one model, not N copies of one run
+            plan = distributed.run_plan(r, tc.num_envs, batch_config(cfg.agent).batch_size, tc.updates_per_rollout,
+                                        tc.num_envs * r.world_size * phase_steps(tc, r.world_size))
+            Console(stderr=True).print(plan, highlight=False, soft_wrap=True)
         r.check_replicated({"config": torch.frombuffer(bytearray(config_json(cfg).encode()), dtype=torch.uint8)},
                            "the run config")
         seed = tc.seed + r.rank  # this rank's envs and random streams (rank 0: those of a single process)
@@ -326,7 +330,8 @@ class Trainer:
             if self._writer:
                 self._writer.flush()
         return {"env_steps": self.env_steps, "updates": self.learner.updates, "checkpoint": str(path),
-                "interrupted": self._stop, "seconds": time.perf_counter() - t0, **self.learner.last_metrics}
+                "world_size": self.replicas.world_size, "interrupted": self._stop,
+                "seconds": time.perf_counter() - t0, **self.learner.last_metrics}
 
     @property
     def wall_s(self) -> float:

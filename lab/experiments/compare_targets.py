@@ -38,7 +38,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-FLOORS = ("zero", "random", "settings")
+#: the keys of a targets.py file that are not the model row: the floors, the settings, the behaviour table
+NOT_MODEL = ("zero", "random", "settings", "behaviours")
 MEASURES = {"walk": "move-ego-0-2", "tasks > floors": "beats_floors", "goal": "goal_success", "EMD": "tracking_emd"}
 # (one seed, the mean) per printed column: counts get a decimal in their mean
 FORMATS = {"walk": ("{:.1f}", "{:.1f}"), "tasks > floors": ("{:.0f}", "{:.2f}"), "goal": ("{:.3f}", "{:.3f}"),
@@ -47,7 +48,7 @@ FORMATS = {"walk": ("{:.1f}", "{:.1f}"), "tasks > floors": ("{:.0f}", "{:.2f}"),
 
 def only_model(path: Path, data: dict[str, Any]) -> str:
     """The name of the one model row of a results file (the row that is not a floor or the settings)."""
-    names = [k for k in data if k not in FLOORS]
+    names = [k for k in data if k not in NOT_MODEL]
     if len(names) != 1:
         raise SystemExit(f"{path}: expected one model row besides the floors, found {names}")
     return names[0]

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from fbcpr.cli.imitate_cmd import imitation_config
+from fbcpr.core.config import data_dir
 from fbcpr.core.protocols import EnvBundle
 from fbcpr.envs.bundle import make_env
 from fbcpr.eval.agents import RandomAgent
@@ -35,8 +36,7 @@ from fbcpr.metrics import imitation_scores
 from fbcpr.eval.upright import seconds_upright
 from fbcpr.train.trainer import Trainer
 
-ROOT = Path(__file__).resolve().parents[1]
-CLIPS = ROOT / "data" / "clips" / "deepmimic"
+CLIPS = data_dir() / "clips" / "deepmimic"  # where `fbcpr motions import` puts them
 STARTS, HORIZON = 8, 150
 
 
@@ -103,7 +103,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0", help="comma-separated training seeds, run one after another")
     ap.add_argument("--minutes", type=float, default=15.0, help="wall-clock cap on each seed's training")
     ap.add_argument("--config", type=Path, default=None, help="TD3 config instead of the shipped <reward>-walk")
-    ap.add_argument("--out", type=Path, default=ROOT / "runs" / "imitation", help="parent of the run directories")
+    ap.add_argument("--out", type=Path, default=Path("runs/imitation"), help="parent of the run directories")
     args = ap.parse_args()
     clip = clip_path(args.clip)
     lines = []

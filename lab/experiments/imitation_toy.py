@@ -1,6 +1,6 @@
 """Single-task and imitation evidence on the point mass: TD3 on one reward; AMP, NEAR and VIRL on one demonstration.
 
-    python lab/experiments/imitation_toy.py [--out runs/imitation-toy] [--seed 0] [--only td3,amp,near,virl-state,virl-video]
+    python lab/experiments/imitation_toy.py [--out runs/imitation-toy] [--seed 0] [--steps N] [--only td3,amp,near,virl-state,virl-video]
                                        [--set agent.virl.multitask=null ...]   (ablations: config overrides)
 
 Trains fbcpr/configs/td3-toy.yaml (TD3 on the reach-top-right reward) and fbcpr/configs/amp-toy.yaml (TD3 on the AMP reward
@@ -24,20 +24,19 @@ import torch
 
 import yaml
 
-from fbcpr.core.config import config_from_dict
+from fbcpr.core.config import config_from_dict, find_config
 from fbcpr.core.schema import Config
 from fbcpr.eval.toy import imitation_metrics, task_return
 from fbcpr.train.trainer import Trainer
 
-ROOT = Path(__file__).resolve().parents[1]
 EVAL_SEED = 123
-IMITATION = {"amp": "amp-toy.yaml", "near": "near-toy.yaml", "virl-state": "virl-toy.yaml",
-             "virl-video": "virl-toy-video.yaml"}
+IMITATION = {"amp": "amp-toy", "near": "near-toy", "virl-state": "virl-toy",
+             "virl-video": "virl-toy-video"}
 
 
 def load(config: str, overrides: tuple[str, ...]) -> Config:
     """A shipped toy config with `dotted.key=value` overrides (YAML values), validated like any config."""
-    data = yaml.safe_load((ROOT / "configs" / config).read_text())
+    data = yaml.safe_load(find_config(config).read_text())
     for item in overrides:
         key, _, value = item.partition("=")
         *path, last = key.split(".")
@@ -48,10 +47,13 @@ def load(config: str, overrides: tuple[str, ...]) -> Config:
     return config_from_dict(data)
 
 
-def train(config: str, out: Path, seed: int, overrides: tuple[str, ...] = ()) -> tuple[Trainer, dict[str, float]]:
-    """Train one config to its end; returns the trainer and its wall / CPU seconds."""
+def train(config: str, out: Path, seed: int, overrides: tuple[str, ...] = (),
+          steps: int | None = None) -> tuple[Trainer, dict[str, float]]:
+    """Train one config to its end (or `steps` env steps); returns the trainer and its wall / CPU seconds."""
     cfg = load(config, overrides)
     cfg.train.seed = seed
+    if steps is not None:
+        cfg.train.total_env_steps, cfg.train.warmup_steps = steps, min(cfg.train.warmup_steps, steps // 2)
     torch.set_num_threads(cfg.train.torch_threads or 1)
     t0, c0 = time.perf_counter(), time.process_time()
     trainer = Trainer(cfg, out, progress=False)
@@ -61,7 +63,8 @@ def train(config: str, out: Path, seed: int, overrides: tuple[str, ...] = ()) ->
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default=str(ROOT / "runs" / "imitation-toy"))
+    ap.add_argument("--out", default="runs/imitation-toy")
+    ap.add_argument("--steps", type=int, help="env steps of every run (default: each config's own)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--only", default="td3," + ",".join(IMITATION), help="comma-separated methods to run")
     ap.add_argument("--set", action="append", default=[], help="config override for the imitation runs, key=value")
@@ -71,14 +74,14 @@ def main() -> None:
     results = []
 
     if "td3" in only:
-        td3, cost = train("td3-toy.yaml", out / "td3", args.seed)
+        td3, cost = train("td3-toy", out / "td3", args.seed, steps=args.steps)
         task = td3.cfg.agent.reward.task
         value = task_return(td3.agent.model.eval(), task, np.random.default_rng(EVAL_SEED), prompt=False)
         random = task_return(None, task, np.random.default_rng(EVAL_SEED), prompt=False)
         results.append({"method": "td3", "task": task, "metric": "return", "value": value, "random": random, **cost})
 
     for method in (m for m in IMITATION if m in only):
-        run, cost = train(IMITATION[method], out / method, args.seed, tuple(args.set))
+        run, cost = train(IMITATION[method], out / method, args.seed, tuple(args.set), args.steps)
         demo = run.cfg.env.motions
         learned = imitation_metrics(run.agent.model.eval(), demo, np.random.default_rng(EVAL_SEED))
         floor = imitation_metrics(None, demo, np.random.default_rng(EVAL_SEED))

@@ -20,11 +20,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from fbcpr.core.config import load_config  # noqa: E402
+from fbcpr.core.config import find_config, load_config  # noqa: E402
 from fbcpr.rewards.near.reward import NEARReward  # noqa: E402
 from fbcpr.envs import toy as pm  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository root: figures go to its docs/img/
 GRID, DIRECTIONS = 41, 16
 
 
@@ -46,7 +46,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     torch.set_num_threads(1)
-    cfg = load_config(ROOT / "configs" / "near-toy.yaml")
+    cfg = load_config(find_config("near-toy"))
     demo = pm.demo_paths()[cfg.env.motions]
     near = NEARReward(pm.OBS_DIM, cfg.agent.near, seed=args.seed,
                       library=pm.DemoLibrary({cfg.env.motions: demo}))

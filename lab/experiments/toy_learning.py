@@ -15,18 +15,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fbcpr.core.config import load_config
+from fbcpr.core.config import find_config, load_config
 from fbcpr.core.schema import Config
 from fbcpr.eval.toy import evaluate
 from fbcpr.train.trainer import Trainer
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository root: figures go to its docs/img/
 
 
 def run_seed(seed: int, steps: int | None, out: Path, cfg: Config | None = None) -> dict:
     """Train `cfg` (default fbcpr/configs/toy.yaml) with one seed, evaluating every eval_every env steps; the history of
     one run."""
-    cfg = cfg or load_config(ROOT / "configs" / "toy.yaml")
+    cfg = cfg or load_config(find_config("toy"))
     cfg.train.seed = seed
     if steps:
         cfg.train.total_env_steps = steps
@@ -50,7 +50,7 @@ def run_seed(seed: int, steps: int | None, out: Path, cfg: Config | None = None)
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=None)
-    ap.add_argument("--out", default=str(ROOT / "runs" / "toy-bench"))
+    ap.add_argument("--out", default="runs/toy-bench")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--plot", default=str(ROOT / "docs" / "img" / "toy_learning.png"))
     args = ap.parse_args()

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from toy_learning import ROOT, run_seed  # the sibling script (benchmarks/ is on sys.path when run)
-from fbcpr.core.config import load_config
+from toy_learning import run_seed  # the sibling script (lab/experiments/ is on sys.path when run)
+from fbcpr.core.config import find_config, load_config
 from fbcpr.eval.toy import evaluate
 
 #: The NEAR section for the toy: sigma_1 = 1 (the features are standardised, so the paper's sigma_1 = 20 noise would
@@ -30,7 +30,7 @@ METRICS = ("goal_success", "goal_proximity", "goal_final_dist", "return/reach-to
 
 
 def config(regulariser: str, seed: int, steps: int, eval_every: int):
-    cfg = load_config(ROOT / "configs" / "toy.yaml")
+    cfg = load_config(find_config("toy"))
     cfg.agent.regulariser = regulariser
     for k, v in NEAR_TOY.items():
         setattr(cfg.agent.near, k, v)
@@ -57,7 +57,7 @@ def main() -> None:
     ap.add_argument("--eval-every", type=int, default=10_000)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--regularisers", nargs="+", default=["near", "discriminator"])
-    ap.add_argument("--out", default=str(ROOT / "runs" / "toy-reg"))
+    ap.add_argument("--out", default="runs/toy-reg")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

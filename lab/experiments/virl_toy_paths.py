@@ -21,14 +21,14 @@ from fbcpr.core.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E4
 from fbcpr.eval.toy import demo_rollouts, imitation_metrics  # noqa: E402
 from fbcpr.envs.toy import demo_paths  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository root: figures go to its docs/img/
 METHODS = ("random", "amp", "virl-state", "virl-video")
 EVAL_SEED = 123
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--runs", default=str(ROOT / "runs" / "imitation-toy"))
+    ap.add_argument("--runs", default="runs/imitation-toy")
     ap.add_argument("--out", default=str(ROOT / "docs" / "img" / "virl_toy_paths.png"))
     args = ap.parse_args()
     fig, axes = plt.subplots(1, len(METHODS), figsize=(3.2 * len(METHODS), 3.8))

@@ -218,3 +218,8 @@ def test_the_no_loss_rule_asks_for_no_loss_and_two_gains_beyond_the_floors(tmp_p
     monkeypatch.setattr("sys.argv", argv)
     compare_targets.main()
     assert "rule: fails walk, sum" in capsys.readouterr().out
+
+
+def test_a_targets_file_with_its_behaviour_table_has_one_model_row(tmp_path):
+    data = {"pretrained": {}, "zero": {}, "random": {}, "settings": {}, "behaviours": {"families": {}}}
+    assert compare_targets.only_model(tmp_path / "t.json", data) == "pretrained"
