@@ -41,13 +41,14 @@ if [ "$DRY" = 1 ]; then
   SELFTEST=(--sizes tiny --updates 4)
   PACK_TAIL=30  # seconds kept for the pack at the end
   BENCH_SHARE=2  # the benchmark's share of what is left: a half here (its processes start slowly on a busy CPU)
-  # the window's config at tiny sizes: the humanoid on the synthetic clips, a short warm-up, frequent checkpoints
+  # the window's config at tiny sizes: the humanoid on the synthetic clips, a short warm-up, frequent checkpoints,
+  # and a run of 1,200 env steps that ends on its own (the window's timeout only guards it)
   "$PY" - "$CONFIG" << 'EOF'
 import sys
 import yaml
 cfg = {"model": {"preset": "tiny"}, "agent": {"batch_size": 32, "seq_length": 8},
        "env": {"name": "humanoid", "motions": "synthetic", "max_episode_steps": 100},
-       "train": {"device": "cpu", "engine": "async", "collectors": 1, "num_envs": 4, "total_env_steps": 10**6,
+       "train": {"device": "cpu", "engine": "async", "collectors": 1, "num_envs": 4, "total_env_steps": 1200,
                  "warmup_steps": 80, "rollout_steps": 40, "updates_per_rollout": 4, "buffer_capacity": 20000,
                  "priority_every": 0, "eval_every": 0, "checkpoint_every": 400, "log_every": 200,
                  "reward_buffer_size": 200, "torch_threads": 1}}
