@@ -26,6 +26,8 @@ DOC_SKIP = {
     "HF_HUB_OFFLINE=1 fbcpr": "a Hugging Face Hub repo id: needs the network, or the repo in the local cache",
     "torchrun": "starts several processes (8 GPUs, several machines, or 2 ranks of the cpu config); "
                 "tests/test_distributed.py runs `python -m fbcpr train` on 2 ranks over gloo",
+    "python benchmarks/engine_speed.py --device cuda": "needs a CUDA GPU; the same script runs on the CPU here and in "
+                                                       "tests/test_gpu_window.py's dry run of the GPU window",
     "fbcpr train runs/td3-npmp.yaml": "the config the user writes from the YAML block above it (a shipped TD3 config "
                                       "with env.npmp); TD3 in an NPMP's latent space is tested in "
                                       "tests/test_npmp_reuse.py",
@@ -49,6 +51,8 @@ SCRIPT_SHORT = {
     "benchmarks/update_speed.py": ["--sizes", "tiny", "--reps", "1"],
     "benchmarks/bf16_agreement.py": ["--steps", "16", "--batches", "1"],
     "benchmarks/batch_draw.py": ["--sizes", "tiny", "--rows", "2000", "--updates", "2", "--reps", "1"],
+    "benchmarks/engine_speed.py": ["--preset", "tiny", "--envs", "4", "--collectors", "1", "--warmup", "160",
+                                   "--steps", "320", "--rollout", "40"],
     "benchmarks/distributed_scaling.py": ["--ranks", "1", "--collect-steps", "512", "--train-steps", "512"],
     "lab/experiments/upright_time.py": ["--episodes", "1", "--steps", "5"],
     "lab/experiments/noise_copy.py": ["--reward-samples", "200"],
@@ -67,7 +71,7 @@ SCRIPT_SHORT = {
 }
 #: Words that stand for the reader's own choice, and what the test puts in their place.
 PLACEHOLDERS = {"CKPT": "runs/demo", "R": "amp", "S": "0"}
-#: Clip names the docs read from data/clips/deepmimic and data/clips/mixed (and clip.npz, my_clips/, clips/): the
+#: Clip names the docs read from data/clips/deepmimic, mixed and cmu-heldout (and clip.npz, my_clips/, clips/): the
 #: built-in synthetic clips stand in for them, by name.
 CLIPS = {"walk": "walk", "run": "walk", "jump": "squat", "kick": "arm_raise", "crawl": "turn", "squat": "squat",
          "getup_facedown": "stand"}
@@ -110,7 +114,7 @@ def stock(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("docs-commands")
     for name in ("lab", "benchmarks", "fbcpr"):
         (root / name).symlink_to(ROOT / name)
-    for folder in ("data/clips/deepmimic", "data/clips/mixed", "my_clips", "clips"):
+    for folder in ("data/clips/deepmimic", "data/clips/mixed", "data/clips/cmu-heldout", "my_clips", "clips"):
         (root / folder).mkdir(parents=True)
         for name, source in CLIPS.items():  # 1.5 s each: short to render, track and evaluate
             save_clip(dataclasses.replace(getattr(synthetic, source)(1.5), name=name), root / folder / f"{name}.npz")
