@@ -152,13 +152,15 @@ def run_fbcpr(words: list[str]) -> tuple[int, str]:
 
 
 def run_script(words: list[str]) -> tuple[int, str]:
-    """(exit code, output) of `python SCRIPT ARGS...`, run in this process (no interpreter start-up per command);
-    the torch thread count the script sets is put back after it."""
-    threads, argv = torch.get_num_threads(), sys.argv
+    """(exit code, output) of `python SCRIPT ARGS...`, run in this process (no interpreter start-up per command),
+    with the script's folder first on sys.path as Python puts it (scripts import their siblings); the torch thread
+    count the script sets and sys.path are put back after it."""
+    threads, argv, path = torch.get_num_threads(), sys.argv, list(sys.path)
     buf = io.StringIO()
     code = 0
     try:
         sys.argv = [words[0], *words[1:]]
+        sys.path.insert(0, str(Path(words[0]).resolve().parent))
         with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
             runpy.run_path(words[0], run_name="__main__")
     except SystemExit as stop:
@@ -169,7 +171,7 @@ def run_script(words: list[str]) -> tuple[int, str]:
         code = 1
         buf.write(f"\n{type(err).__name__}: {err}")
     finally:
-        sys.argv = argv
+        sys.argv, sys.path[:] = argv, path
         torch.set_num_threads(threads)
     return code, buf.getvalue()
 
