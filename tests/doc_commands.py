@@ -11,7 +11,9 @@ import runpy
 import shlex
 import sys
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import torch
 from typer.testing import CliRunner
 
@@ -178,3 +180,22 @@ def run_script(words: list[str]) -> tuple[int, str]:
 
 def split(command: str) -> list[str]:
     return shlex.split(command)
+
+
+def tiny_bfm_parts() -> tuple[Any, Any, dict[str, np.ndarray]]:
+    """(model, config, reward buffer) of an untrained tiny FB-CPR model whose reward buffer holds the built-in clips'
+    and the goal poses' states, so that every documented reward prompt has states it rewards: the stand-in for a
+    trained model in the docs' runs."""
+    from fbcpr.core.config import config_from_dict
+    from fbcpr.methods.fb_cpr.model import FBCPRModel
+    from humanoid_env.tasks import GOALS, goal_obs, goal_qpos
+    from motions.synthetic import default_clips
+
+    torch.manual_seed(0)
+    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
+                            "agent": {"seq_length": 4, "batch_size": 8}})
+    clips = default_clips()
+    buf = {"next_obs": np.concatenate([c.obs for c in clips] + [np.stack([goal_obs(g) for g in GOALS])]),
+           "qpos": np.concatenate([c.qpos for c in clips] + [np.stack([goal_qpos(g) for g in GOALS])]),
+           "qvel": np.concatenate([c.qvel for c in clips] + [np.zeros((len(GOALS), 75))])}
+    return FBCPRModel(cfg.model), cfg, buf

@@ -1,13 +1,12 @@
 """Every ```python snippet of the README and docs/ runs: the blocks of one file in order, in one namespace, in a
 folder that holds what they name (runs/demo and runs/small: a tiny untrained checkpoint; data/clips: clips).
 A block preceded by `<!-- snippet: not run (reason) -->` is skipped (network, credentials)."""
-import os
 import re
 from pathlib import Path
 
-import numpy as np
 import pytest
-import torch
+
+from doc_commands import tiny_bfm_parts
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -23,21 +22,12 @@ def workdir(tmp_path_factory):
     """runs/demo, runs/small (a tiny humanoid checkpoint whose reward buffer holds clip and goal-pose states, so
     the documented reward prompts have states they reward) and data/clips (the synthetic clips)."""
     from fbcpr.core.checkpoint import save_checkpoint
-    from fbcpr.core.config import config_from_dict
-    from fbcpr.methods.fb_cpr.model import FBCPRModel
-    from humanoid_env.tasks import GOALS, goal_obs, goal_qpos
     from motions.clip import save_clip
     from motions.synthetic import default_clips
 
     root = tmp_path_factory.mktemp("docs")
-    torch.manual_seed(0)
-    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
-                            "agent": {"seq_length": 4, "batch_size": 8}})
+    model, cfg, buf = tiny_bfm_parts()
     clips = default_clips()
-    buf = {"next_obs": np.concatenate([c.obs for c in clips] + [np.stack([goal_obs(g) for g in GOALS])]),
-           "qpos": np.concatenate([c.qpos for c in clips] + [np.stack([goal_qpos(g) for g in GOALS])]),
-           "qvel": np.concatenate([c.qvel for c in clips] + [np.zeros((len(GOALS), 75))])}
-    model = FBCPRModel(cfg.model)
     for name in ("demo", "small"):
         save_checkpoint(root / "runs" / name, model, cfg, reward_buffer=buf)
     (root / "data" / "clips").mkdir(parents=True)

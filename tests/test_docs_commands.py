@@ -12,11 +12,11 @@ import re
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
-from doc_commands import ROOT, SKIP, bash_commands, expand, one_pass, run_fbcpr, run_script, short_words, without_video
+from doc_commands import (ROOT, SKIP, bash_commands, expand, one_pass, run_fbcpr, run_script, short_words,
+                          tiny_bfm_parts, without_video)
 
 DOCS = [p for p in [*sorted((ROOT / "docs").glob("*.md")), ROOT / "lab" / "README.md"] if bash_commands(p)]
 
@@ -100,16 +100,13 @@ def stock(tmp_path_factory) -> Path:
     have trained one, a config and a frame folder of their own, and the source tree's lab/, benchmarks/ and
     fbcpr/configs/ (the docs run scripts from a source checkout)."""
     from fbcpr.core.checkpoint import save_checkpoint, write_pointer
-    from fbcpr.core.config import config_from_dict, load_config, shipped_configs
+    from fbcpr.core.config import load_config, shipped_configs
     from fbcpr.envs.toy import demo_paths
     from fbcpr.inference.bfm import pretrained_dir
-    from fbcpr.methods.fb_cpr.model import FBCPRModel
     from fbcpr.rewards.virl.frames import rasterize_points, save_frames
     from fbcpr.train.trainer import Trainer
-    from humanoid_env.tasks import GOALS, goal_obs, goal_qpos
     from motions import synthetic
     from motions.clip import save_clip
-    from motions.synthetic import default_clips
 
     root = tmp_path_factory.mktemp("docs-commands")
     for name in ("lab", "benchmarks", "fbcpr"):
@@ -120,14 +117,7 @@ def stock(tmp_path_factory) -> Path:
             save_clip(dataclasses.replace(getattr(synthetic, source)(1.5), name=name), root / folder / f"{name}.npz")
     shutil.copy(root / "data/clips/deepmimic/walk.npz", root / "clip.npz")
 
-    torch.manual_seed(0)
-    cfg = config_from_dict({"model": {"preset": "tiny", "obs_dim": 358, "action_dim": 69},
-                            "agent": {"seq_length": 4, "batch_size": 8}})
-    clips = default_clips()
-    buf = {"next_obs": np.concatenate([c.obs for c in clips] + [np.stack([goal_obs(g) for g in GOALS])]),
-           "qpos": np.concatenate([c.qpos for c in clips] + [np.stack([goal_qpos(g) for g in GOALS])]),
-           "qvel": np.concatenate([c.qvel for c in clips] + [np.zeros((len(GOALS), 75))])}
-    model = FBCPRModel(cfg.model)
+    model, cfg, buf = tiny_bfm_parts()
     for path in ("runs/demo", "runs/quickstart/ckpt", "runs/mixed"):
         save_checkpoint(root / path, model, cfg, reward_buffer=buf)
     for run in ("runs/cpu", "runs/rollouts"):
