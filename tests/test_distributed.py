@@ -224,15 +224,21 @@ def test_world_size_and_backend_limits_are_config_errors(monkeypatch):
         distributed.setup(torch.device("cpu"), 5.0, "nccl")
 
 
+def two_rank_train(config: Path, run: Path) -> list[subprocess.Popen]:
+    """`fbcpr train CONFIG --out RUN` as the 2 ranks torchrun would start, on a free local port."""
+    port = free_port()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    return [subprocess.Popen([sys.executable, "-m", "fbcpr", "train", str(config), "--out", str(run), "--no-progress"],
+                             env={**env, **rank_env(r, 2, port)}, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True) for r in (0, 1)]
+
+
 def test_a_killed_rank_ends_the_others_with_a_clear_error_and_keeps_the_checkpoint(tmp_path):
     cfg = fbcpr_cfg(total_env_steps=10**6, checkpoint_every=32, log_every=10**5, priority_every=0,
                     dist_timeout_s=30)
     (tmp_path / "cfg.yaml").write_text(dump_config(cfg))
-    port, run = free_port(), tmp_path / "run"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    procs = [subprocess.Popen([sys.executable, "-m", "fbcpr", "train", str(tmp_path / "cfg.yaml"), "--out", str(run),
-                               "--no-progress"], env={**env, **rank_env(r, 2, port)}, stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True) for r in (0, 1)]
+    run = tmp_path / "run"
+    procs = two_rank_train(tmp_path / "cfg.yaml", run)
     try:
         deadline = time.monotonic() + 60
         while not list((run / "checkpoints").glob("step_*")) and time.monotonic() < deadline:
@@ -255,11 +261,8 @@ def test_a_killed_rank_ends_the_others_with_a_clear_error_and_keeps_the_checkpoi
 def test_rank_0_says_what_a_torchrun_run_runs_and_the_summary_records_the_world_size(tmp_path):
     cfg = fbcpr_cfg(num_envs=2)  # 16 env steps a phase: 2 ranks x 2 envs x 4 steps
     (tmp_path / "cfg.yaml").write_text(dump_config(cfg))
-    port, run = free_port(), tmp_path / "run"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    procs = [subprocess.Popen([sys.executable, "-m", "fbcpr", "train", str(tmp_path / "cfg.yaml"), "--out", str(run),
-                               "--no-progress"], env={**env, **rank_env(r, 2, port)}, stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True) for r in (0, 1)]
+    run = tmp_path / "run"
+    procs = two_rank_train(tmp_path / "cfg.yaml", run)
     logs = [p.communicate(timeout=120) for p in procs]
     assert [p.returncode for p in procs] == [0, 0], logs
     plan = ("data-parallel: 2 processes (gloo), each with 2 envs and a batch of 16 (4 envs and 32 samples per update "
