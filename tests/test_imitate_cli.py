@@ -36,3 +36,22 @@ def test_every_registered_reward_has_a_toy_config_and_frames_go_to_video(tmp_pat
     (tmp_path / "frames").mkdir()
     cfg, kind = imitation_config(str(tmp_path / "frames"), "virl")
     assert kind == "toy-video" and cfg.agent.virl.input == "video" and cfg.agent.virl.demo_frames == str(tmp_path / "frames")
+
+
+def test_imitate_resume_continues_the_run_and_refuses_what_it_cannot(tmp_path):
+    from fbcpr.train.trainer import checkpoint_env_steps
+
+    out = tmp_path / "r"
+    res = run("imitate", "circle-ccw", "--reward", "amp", "--out", out, "--more-steps", 100)
+    assert res.exit_code == 1 and "needs --resume" in res.output and not out.exists()
+    res = run("imitate", "circle-ccw", "--reward", "amp", "--out", out, "--resume")
+    assert res.exit_code == 1 and "no checkpoint to resume" in res.output
+    assert run("imitate", "circle-ccw", "--reward", "amp", "--out", out, "--steps", 300,
+               "--no-progress").exit_code == 0
+    first = checkpoint_env_steps(out)
+    res = run("imitate", "circle-ccw", "--reward", "amp", "--out", out, "--resume", "--more-steps", 200,
+              "--no-progress")
+    assert res.exit_code == 0, res.output
+    assert checkpoint_env_steps(out) >= first + 200 and "finished at" in res.output
+    res = run("imitate", "circle-ccw", "--reward", "amp", "--out", out, "--resume", "--steps", first)
+    assert res.exit_code == 0 and "nothing to do" in res.output

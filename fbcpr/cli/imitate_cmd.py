@@ -14,6 +14,7 @@ from typing import Any
 import typer
 
 from fbcpr.cli.common import cli_errors, console
+from fbcpr.core.errors import InputError
 from fbcpr.core.registry import IMITATION_REWARDS
 
 
@@ -74,16 +75,22 @@ def imitate_command(
     reward: str = typer.Option(..., "--reward", metavar=f"<{'|'.join(sorted(IMITATION_REWARDS))}>",
                                 help="Imitation reward."),
     out: Path = typer.Option(..., "--out", help="Run directory (checkpoints, metrics.csv)."),
-    steps: int | None = typer.Option(None, "--steps", min=1, help="Total env steps (overrides the config's)."),
+    steps: int | None = typer.Option(None, "--steps", min=1, help="Total env steps, counted from 0 (overrides the "
+                                        "config's); with --resume too."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its latest checkpoint "
+                                "(same DEMO, --reward and --config)."),
+    more_steps: int | None = typer.Option(None, "--more-steps", min=1, help="With --resume: train this many env "
+                                             "steps beyond the latest checkpoint."),
     seed: int = typer.Option(0, "--seed", min=0, help="Training seed."),
     config: Path | None = typer.Option(None, "--config", help="A TD3 run config to start from instead of the "
                                           "shipped `<reward>-walk` / `<reward>-toy` one."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the live progress bar."),
 ) -> None:
     """Imitate one demonstration: TD3 on the chosen learned imitation reward, trained online (Ctrl-C: final
-    checkpoint)."""
+    checkpoint; --resume continues it)."""
     import numpy as np
 
+    from fbcpr.cli.run_folder import plan_run
     from fbcpr.core.paths import check_output_folder
     from fbcpr.train.trainer import Trainer
 
@@ -91,12 +98,14 @@ def imitate_command(
     check_output_folder(out, "--out", inputs + ([("--config", config)] if config is not None else []))
     cfg, kind = imitation_config(demo, reward, config)
     cfg.train.seed = seed
+    if steps is not None and more_steps is not None:
+        raise InputError("give --steps (the run's total) or --more-steps (beyond the checkpoint), not both")
     if steps is not None:
         cfg.train.total_env_steps = steps
         cfg.train.warmup_steps = min(cfg.train.warmup_steps, steps // 2)
-    if (out / "checkpoints" / "latest").exists():
-        raise FileExistsError(f"{out} already holds a run; choose another --out")
-    trainer = Trainer(cfg, out, progress=progress)
+    if not plan_run(cfg, out, resume, more_steps):
+        return
+    trainer = Trainer(cfg, out, resume=resume, progress=progress)
     try:
         summary = trainer.run()
     finally:

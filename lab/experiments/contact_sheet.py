@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image, ImageDraw
@@ -46,6 +47,31 @@ def prompt_zs(bfm: BFM, spec: str, steps: int) -> tuple[np.ndarray, tuple | None
     return np.repeat(z[None], steps, 0), None, None
 
 
+def contact_sheet(rows: list[tuple[str, Any, bool]], every: int) -> Image.Image:
+    """One row per (label, episode with frames, whether each frame is body | reference side by side), a tile every
+    `every` steps labelled with its time and pelvis height."""
+    images = []
+    for label, ep, paired in rows:
+        width = 2 * TILE_W if paired else TILE_W
+        tiles = []
+        for t in range(0, len(ep.frames), every):
+            tile = Image.fromarray(ep.frames[t]).resize((width, TILE_H))
+            ImageDraw.Draw(tile).text((4, 4), f"{t / CONTROL_HZ:.1f} s  pelvis {ep.obs[t][0]:.2f} m",
+                                      fill=(255, 255, 0))
+            tiles.append(tile)
+        row = Image.new("RGB", (sum(t.width for t in tiles), tiles[0].height + 18), (20, 20, 20))
+        ImageDraw.Draw(row).text((4, 2), label, fill=(255, 255, 255))
+        for i, tile in enumerate(tiles):
+            row.paste(tile, (i * tile.width, 18))
+        images.append(row)
+    sheet = Image.new("RGB", (max(r.width for r in images), sum(r.height for r in images)), (20, 20, 20))
+    y = 0
+    for row in images:
+        sheet.paste(row, (0, y))
+        y += row.height
+    return sheet
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint")
@@ -55,28 +81,10 @@ def main() -> None:
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
     bfm = BFM.load(args.checkpoint)
-    rows = []
     prompts = {spec: prompt_zs(bfm, spec, args.steps) for spec in args.prompts}
-    for spec, (zs, start, clip) in prompts.items():
-        ep = rollout(bfm, zs, start=start, video=True, reference=clip, label=spec)
-        picks = range(0, len(ep.frames), args.every)
-        tiles = []
-        width = TILE_W if clip is None else 2 * TILE_W  # a tracking tile: the body left, the clip right
-        for t in picks:
-            tile = Image.fromarray(ep.frames[t]).resize((width, TILE_H))
-            label = f"{t / CONTROL_HZ:.1f} s  pelvis {ep.obs[t][0]:.2f} m"
-            ImageDraw.Draw(tile).text((4, 4), label, fill=(255, 255, 0))
-            tiles.append(tile)
-        row = Image.new("RGB", (sum(t.width for t in tiles), tiles[0].height + 18), (20, 20, 20))
-        ImageDraw.Draw(row).text((4, 2), spec, fill=(255, 255, 255))
-        for i, tile in enumerate(tiles):
-            row.paste(tile, (i * tile.width, 18))
-        rows.append(row)
-    sheet = Image.new("RGB", (max(r.width for r in rows), sum(r.height for r in rows)), (20, 20, 20))
-    y = 0
-    for row in rows:
-        sheet.paste(row, (0, y))
-        y += row.height
+    rows = [(spec, rollout(bfm, zs, start=start, video=True, reference=clip, label=spec), clip is not None)
+            for spec, (zs, start, clip) in prompts.items()]
+    sheet = contact_sheet(rows, args.every)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     sheet.save(args.out)
     print(f"{args.out}: {len(rows)} prompts, a frame every {args.every} steps")

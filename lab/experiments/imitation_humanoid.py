@@ -2,6 +2,7 @@
 
     python lab/experiments/imitation_humanoid.py --reward amp|near|virl|random [--clip walk] [--env-steps 23040]
                                             [--seeds 0,1] [--minutes 15] [--config PATH] [--out runs/imitation]
+    python lab/experiments/imitation_humanoid.py --run RUN_DIR [--clip walk] [--every 1] [--sheet PNG] [--plot PNG]
 
 For each seed, one at a time: builds the run config as `fbcpr imitate CLIP --reward R` does (the shipped
 `<reward>-walk` config, or --config, with env.motions = the clip; `--clip` is a name in data/clips/deepmimic or
@@ -11,6 +12,9 @@ initialisation, as NEAR's evaluation) for HORIZON steps and scores each rollout 
 error (root-relative body positions, metres), SPARC of the root speed next to the clip's own, and the seconds
 until the pelvis first drops below 0.6 m (upright time; HORIZON / 30 s when it never does). A uniform random
 policy is scored the same way in the same run (the floor); `--reward random` scores only the floor, no training.
+`--run` trains nothing: it scores every `--every`-th checkpoint of a run made with `fbcpr imitate` (a long one,
+continued with `--resume`), one RESULT line each, with the zero-action floor beside random's; `--plot` draws the
+curve and `--sheet` a contact sheet of the last checkpoint's rollout from the clip's first frame beside the clip.
 One machine-readable line per seed, last:
     RESULT method=<reward> clip=<name> seed=<s> env_steps=<n> dtw=<x> sparc=<x> sparc_expert=<x> upright_s=<x>
            random_dtw=<x> random_sparc=<x> random_upright_s=<x> wall_s=<x> cpu_s=<x> ...
@@ -21,19 +25,20 @@ import argparse
 import json
 import time
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 import torch
 
 from fbcpr.cli.imitate_cmd import imitation_config
+from fbcpr.core.checkpoint import list_checkpoints, load_checkpoint
 from fbcpr.core.config import data_dir
 from fbcpr.core.protocols import EnvBundle
 from fbcpr.envs.bundle import make_env
-from fbcpr.eval.agents import RandomAgent
+from fbcpr.eval.agents import RandomAgent, ZeroAgent
+from fbcpr.eval.upright import seconds_upright
 from fbcpr.inference.agents import make_agent
 from fbcpr.metrics import imitation_scores
-from fbcpr.eval.upright import seconds_upright
 from fbcpr.train.trainer import Trainer
 
 CLIPS = data_dir() / "clips" / "deepmimic"  # where `fbcpr motions import` puts them
@@ -69,7 +74,7 @@ def clip_path(clip: str) -> Path:
     return path
 
 
-def run_seed(reward: str, clip: Path, seed: int, env_steps: int, minutes: float, config: Optional[Path],
+def run_seed(reward: str, clip: Path, seed: int, env_steps: int, minutes: float, config: Path | None,
              out: Path) -> dict[str, Any]:
     """Train one seed (unless `reward` is random) and score it and the random floor."""
     cfg, _ = imitation_config(str(clip), "amp" if reward == "random" else reward, config)
@@ -95,9 +100,92 @@ def run_seed(reward: str, clip: Path, seed: int, env_steps: int, minutes: float,
     return result
 
 
+class _One:
+    """One observation in, one action out, for the single-env rollout of the contact sheet."""
+
+    def __init__(self, agent: Any) -> None:
+        self.agent, self.action_mapping = agent, getattr(agent, "action_mapping", "rest")
+
+    def act(self, obs: np.ndarray, z: np.ndarray) -> np.ndarray:
+        return np.asarray(self.agent.act(obs[None], np.zeros((1, 0), np.float32), mean=True))[0]
+
+
+def score_run(run: Path, clip: Path, every: int, sheet: Path | None, plot: Path | None) -> list[str]:
+    """RESULT lines of every `every`-th checkpoint of `run` (and its last), floors once; the curve and sheet."""
+    found = list_checkpoints(run / "checkpoints")
+    if not found:
+        raise SystemExit(f"--run: {run} has no checkpoints/step_* folders")
+    picked = sorted(set(found[::every]) | {found[-1]})
+    cfg = load_checkpoint(picked[-1]).config
+    cfg.env.motions = str(clip.resolve())
+    bundle = make_env(cfg.env, 1, cfg.train.seed, 1)
+    try:
+        floors = {name: score(agent, bundle) for name, agent in (("random", RandomAgent(0)), ("zero", ZeroAgent()))}
+        rows = []
+        for ckpt in picked:
+            row = {"method": cfg.agent.reward.imitation, "clip": clip.stem, "seed": cfg.train.seed,
+                   "env_steps": int(ckpt.name.split("_")[-1]), **score(make_agent(str(ckpt)), bundle)}
+            row.update({f"{f}_{k}": v for f, got in floors.items() for k, v in got.items() if k != "sparc_expert"})
+            row["dtw_vs_random"] = row["dtw"] / row["random_dtw"]
+            rows.append(row)
+            print("RESULT " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()),
+                  flush=True)
+    finally:
+        bundle.env.close()
+    (run / "imitation_curve.json").write_text(json.dumps(rows, indent=1))
+    if plot is not None:
+        _plot(rows, plot)
+    if sheet is not None:
+        _sheet(picked[-1], clip, sheet)
+    return [f"{r['env_steps']}: dtw {r['dtw']:.3f} ({r['dtw_vs_random']:.2f}x random), upright {r['upright_s']:.1f} s"
+            for r in rows]
+
+
+def _plot(rows: list[dict[str, Any]], path: Path) -> None:
+    """DTW and upright seconds against env steps, the random and zero-action floors dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = [r["env_steps"] for r in rows]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for ax, key, label in ((axes[0], "dtw", "DTW pose error (m)"), (axes[1], "upright_s", "upright (s)")):
+        ax.plot(steps, [r[key] for r in rows], "o-", label=rows[0]["method"])
+        for floor, style in (("random", "--"), ("zero", ":")):
+            ax.axhline(rows[0][f"{floor}_{key}"], color="gray", linestyle=style, label=f"{floor} action")
+        ax.set_xlabel("env steps"), ax.set_ylabel(label)
+    axes[0].legend()
+    fig.suptitle(f"{rows[0]['method']} imitating {rows[0]['clip']}, seed {rows[0]['seed']}")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _sheet(ckpt: Path, clip_file: Path, path: Path) -> None:
+    """The last checkpoint from the clip's first frame, body beside clip, next to the zero action's rollout."""
+    from contact_sheet import contact_sheet  # a sibling lab script: its folder is first on sys.path
+
+    from fbcpr.cli.prompt_cmd import rollout
+    from motions.clip import load_clip
+
+    clip = load_clip(clip_file)
+    zs, start = np.zeros((HORIZON, 0), np.float32), (clip.qpos[0], clip.qvel[0])
+    rows = [(f"{label} (left) beside {clip_file.stem} (right)",
+             rollout(_One(agent), zs, start=start, video=True, reference=clip, label=label), True)
+            for label, agent in ((ckpt.name, make_agent(str(ckpt))), ("zero action", ZeroAgent()))]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    contact_sheet(rows, 15).save(path)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--reward", required=True, choices=["amp", "near", "virl", "random"])
+    ap.add_argument("--reward", choices=["amp", "near", "virl", "random"], help="train and score (or --run)")
+    ap.add_argument("--run", type=Path, default=None, help="score the checkpoints of this `fbcpr imitate` run")
+    ap.add_argument("--every", type=int, default=1, help="with --run: every N-th checkpoint (and the last)")
+    ap.add_argument("--sheet", type=Path, default=None, help="with --run: contact sheet PNG of the last checkpoint")
+    ap.add_argument("--plot", type=Path, default=None, help="with --run: PNG of the curve against env steps")
     ap.add_argument("--clip", default="walk", help="clip name in data/clips/deepmimic, or a .npz path")
     ap.add_argument("--env-steps", type=int, default=23040, help="env-step budget per seed")
     ap.add_argument("--seeds", default="0", help="comma-separated training seeds, run one after another")
@@ -106,6 +194,11 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("runs/imitation"), help="parent of the run directories")
     args = ap.parse_args()
     clip = clip_path(args.clip)
+    if (args.run is None) == (args.reward is None):
+        raise SystemExit("give --reward (train and score) or --run (score a run's checkpoints)")
+    if args.run is not None:
+        print("\n".join(score_run(args.run, clip, args.every, args.sheet, args.plot)))
+        return
     lines = []
     for seed in (int(s) for s in args.seeds.split(",")):
         out = args.out / f"{args.reward}-{clip.stem}-s{seed}"
