@@ -3,9 +3,10 @@
     python benchmarks/virl_render_cost.py [--frames 30] [--size 64]
 
 Renders poses of the DeepMimic walk clip with the tracking camera (`fbcpr.rewards.virl.frames.render_clip`, one MuJoCo
-scene each), and reports the time per frame next to the time per env step of the humanoid (16 envs, random
-actions: the reference, measured in the same run) and per frame of the point-mass rasteriser (batched torch).
-Last line: RESULT render_ms=<x> env_step_ms=<y> toy_frame_us=<z> (per frame, per env step, per toy frame).
+scene each) twice, with the scene's default effects (shadows, reflections, skybox, multisampling) and plain (the
+way training renders), and reports the time per frame of each next to the time per env step of the humanoid
+(16 envs, random actions: the reference, measured in the same run) and per frame of the point-mass rasteriser.
+Last line: RESULT render_ms=<default> plain_ms=<plain> ratio=<default/plain> env_step_ms=<y> toy_frame_us=<z>.
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fbcpr.rewards.virl.frames import rasterize_points, render_clip
+from fbcpr.rewards.virl.frames import HumanoidFrames, rasterize_points
 from motions.library import MotionLibrary
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,10 +31,15 @@ def main() -> None:
     torch.set_num_threads(1)
     clip = MotionLibrary.load([ROOT / "data" / "clips" / "deepmimic" / "walk.npz"]).clips[0]
     qpos = np.resize(clip.qpos, (args.frames, clip.qpos.shape[1]))
-    render_clip(qpos[:1], args.size)                                      # renderer start-up, not counted
-    t0 = time.perf_counter()
-    frames = render_clip(qpos, args.size)
-    render = (time.perf_counter() - t0) / args.frames
+    times = {}
+    for plain in (False, True, False, True):                              # interleaved: load drifts alike on both
+        renderer = HumanoidFrames(args.size, plain)
+        renderer.render(qpos[:1])                                         # renderer start-up, not counted
+        t0 = time.perf_counter()
+        frames = renderer.render(qpos)
+        times.setdefault(plain, []).append((time.perf_counter() - t0) / args.frames)
+        renderer.close()
+    render, plain_ms = min(times[False]), min(times[True])
 
     from humanoid_env.vector import VectorHumanoidEnv
 
@@ -50,8 +56,9 @@ def main() -> None:
     t0 = time.perf_counter()
     rasterize_points(pos, 32)
     toy = (time.perf_counter() - t0) / len(pos)
-    print(f"humanoid frames {frames.shape} in [{frames.min():.2f}, {frames.max():.2f}]")
-    print(f"RESULT render_ms={1e3 * render:.1f} env_step_ms={1e3 * step:.2f} toy_frame_us={1e6 * toy:.1f}")
+    print(f"plain humanoid frames {frames.shape} uint8 in [{frames.min()}, {frames.max()}]")
+    print(f"RESULT render_ms={1e3 * render:.1f} plain_ms={1e3 * plain_ms:.1f} ratio={render / plain_ms:.1f} "
+          f"env_step_ms={1e3 * step:.2f} toy_frame_us={1e6 * toy:.1f}")
 
 
 if __name__ == "__main__":

@@ -20,7 +20,9 @@ built by `fbcpr.core.registry.imitation_reward` with the env's demonstration lib
 before RL (NEAR) pretrains on in its first `fit`.
 A sequence reward (VIRL) also has an int attribute `history` > 0: the agent then samples each transition with the
 `history` states of its episode before s (`ReplayBuffer.sample(history=)`, batch["history"]) and passes them as
-`reward(obs, next_obs, history=...)`.
+`reward(obs, next_obs, history=...)`. A video reward on the humanoid also has `frame_size` > 0: the collector
+renders each s' once as a grey uint8 frame of that side, the replay buffer keeps it, and the agent passes the frames
+of history + s' as `reward(..., frames=(n, history + 1, size, size))` and in `fit`'s batch["frames"].
 """
 from __future__ import annotations
 

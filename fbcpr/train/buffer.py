@@ -6,7 +6,8 @@ Large buffers (the paper's 5M transitions of the humanoid are ~15 GB) live in me
 
 The trainer adds one transition per env per step, so an env's previous transition sits `stride` (= num_envs)
 rows back; `sample(..., history=H)` walks back that way to give each transition the states of its episode before
-it (a sequence reward's input, VIRL's), without storing sequences.
+it (a sequence reward's input, VIRL's), without storing sequences. An optional "frame" field (a grey uint8 image of
+s', rendered once at collection for VIRL's video input) gives, with `frames=True`, the frames of that same walk.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import numpy as np
 import torch
 
 FIELDS = ("obs", "action", "next_obs", "z", "qpos", "qvel", "terminated")
+FRAME = "frame"  # optional field: a (size, size) uint8 grey image of s' (4 KiB a transition at 64x64)
 
 
 def transition_specs(obs_dim: int, action_dim: int, z_dim: int, nq: int, nv: int) -> dict[str, tuple[int, ...]]:
@@ -40,14 +42,20 @@ class ReplayBuffer:
             self.memmap_dir.mkdir(parents=True, exist_ok=True)
         self.data = {k: self._alloc(k, (capacity, *shape)) for k, shape in specs.items()}
 
+    @staticmethod
+    def dtype(name: str) -> type:
+        """uint8 for frames, float32 for everything else."""
+        return np.uint8 if name == FRAME else np.float32
+
     def _alloc(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
         if self.memmap_dir is None:
-            return np.zeros(shape, dtype=np.float32)
-        return np.lib.format.open_memmap(self.memmap_dir / f"{name}.npy", mode="w+", dtype=np.float32, shape=shape)
+            return np.zeros(shape, dtype=self.dtype(name))
+        return np.lib.format.open_memmap(self.memmap_dir / f"{name}.npy", mode="w+", dtype=self.dtype(name),
+                                         shape=shape)
 
     @staticmethod
     def bytes_needed(capacity: int, specs: dict[str, tuple[int, ...]]) -> int:
-        return 4 * capacity * sum(int(np.prod(s)) for s in specs.values())
+        return capacity * sum(np.dtype(ReplayBuffer.dtype(k)).itemsize * int(np.prod(s)) for k, s in specs.items())
 
     def __len__(self) -> int:
         return self.size
@@ -61,7 +69,7 @@ class ReplayBuffer:
         k = len(batch["obs"])
         arrays = {}
         for name, shape in self.specs.items():
-            arr = np.asarray(batch[name], dtype=np.float32)
+            arr = np.asarray(batch[name], dtype=self.dtype(name))
             if arr.shape != (k, *shape):
                 raise ValueError(f"ReplayBuffer.add: field {name!r} has shape {arr.shape}, expected {(k, *shape)}")
             arrays[name] = arr
@@ -80,24 +88,32 @@ class ReplayBuffer:
         return idx
 
     def sample(self, rng: np.random.Generator, n: int, fields: tuple[str, ...] = FIELDS,
-               history: int = 0) -> dict[str, torch.Tensor]:
-        """n transitions uniformly with replacement, as float32 tensors; with history=H > 0 also "history",
-        (n, H, obs_dim): the episode's states s_{t-H+1}..s_t ending at each obs, the earliest one repeated where
-        the episode (or the buffer) began less than H steps before."""
+               history: int = 0, frames: bool = False) -> dict[str, torch.Tensor]:
+        """n transitions uniformly with replacement, as tensors (float32; uint8 frames); with history=H > 0 also
+        "history", (n, H, obs_dim): the episode's states s_{t-H+1}..s_t ending at each obs, the earliest one
+        repeated where the episode (or the buffer) began less than H steps before; with `frames` also "frames",
+        (n, H + 1, size, size) uint8: the frames of s_{t-H+1}..s_{t+1} (the reset state has none: the episode's
+        first frame stands in for it)."""
         if self.size == 0:
             raise RuntimeError("ReplayBuffer.sample: the buffer is empty")
+        if frames and FRAME not in self.data:
+            raise ValueError("ReplayBuffer.sample: frames asked of a buffer without a 'frame' field")
         idx = np.sort(rng.integers(0, self.size, size=n))  # sorted: sequential reads on memmaps
         out = {k: torch.from_numpy(np.ascontiguousarray(self.data[k][idx])) for k in fields}
         if history > 0:
-            out["history"] = torch.from_numpy(self._history(idx, history))
+            rows = self._rows(idx, history + 1 if frames else history)
+            out["history"] = torch.from_numpy(self.data["obs"][rows[:, -history:]])
+            if frames:
+                out["frames"] = torch.from_numpy(self.data[FRAME][rows])
         return out
 
-    def _history(self, idx: np.ndarray, length: int) -> np.ndarray:
-        """States of the `length` steps ending at obs[idx], walking back `stride` rows while the previous row's
-        next_obs is this row's obs (the same env's episode: a reset breaks the equality)."""
+    def _rows(self, idx: np.ndarray, length: int) -> np.ndarray:
+        """(n, length) rows of the episode's `length` transitions ending at idx, walking back `stride` rows while
+        the previous row's next_obs is this row's obs (the same env's episode: a reset breaks the equality); the
+        earliest row is repeated where the episode (or the buffer) began less than `length` steps before."""
         obs, nxt = self.data["obs"], self.data["next_obs"]
-        seq = np.empty((len(idx), length, obs.shape[1]), dtype=np.float32)
-        seq[:, -1] = obs[idx]
+        rows = np.empty((len(idx), length), dtype=np.int64)
+        rows[:, -1] = idx
         cur, alive = idx.copy(), np.ones(len(idx), dtype=bool)
         for j in range(length - 2, -1, -1):  # over time steps, batched over the sample
             age = (cur - self.pos) % self.capacity if self.size == self.capacity else cur  # rows older than cur
@@ -105,8 +121,8 @@ class ReplayBuffer:
             alive &= age >= self.stride
             alive[alive] = (nxt[prev[alive]] == obs[cur[alive]]).all(axis=1)
             cur = np.where(alive, prev, cur)
-            seq[:, j] = np.where(alive[:, None], obs[cur], seq[:, j + 1])
-        return seq
+            rows[:, j] = cur
+        return rows
 
     def reward_inference_sample(self, max_n: int, rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
         """Up to max_n distinct transitions' (next_obs, qpos, qvel): the checkpoint's reward buffer."""

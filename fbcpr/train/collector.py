@@ -4,6 +4,8 @@ buffer (and its device copy), in the trainer's process (`train.engine: sync`, th
 It owns what a rollout carries from one step to the next: the envs' observations, each env's rollout latent z and
 its age (a new one every `train.z_update_every` steps and at every new episode), the episodes finished and the
 statistics of the policy's actions. `fbcpr.train.workers` runs the same steps in worker processes instead.
+For an agent with a video reward (`frame_size` > 0) it renders each transition's s' once, as a grey frame the buffer
+keeps (`fbcpr.rewards.virl.frames.HumanoidFrames`): updates read stored frames and never render.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import torch
 
 from fbcpr.core.protocols import EnvBundle, OnlineAgent
 from fbcpr.core.schema import Config, batch_config
+from fbcpr.rewards.virl.frames import HumanoidFrames
 from fbcpr.train.buffer import ReplayBuffer
 from fbcpr.train.device_batches import DeviceBatches
 
@@ -55,6 +58,8 @@ class Collector:
         self.obs, _ = bundle.env.reset(seed=seed)
         self.z = self.sample_z(cfg.train.num_envs)
         self.z_age = np.zeros(cfg.train.num_envs, dtype=np.int64)
+        size = getattr(agent, "frame_size", 0)
+        self.frames = HumanoidFrames(size) if size else None
 
     def sample_z(self, n: int) -> torch.Tensor:
         """n rollout latents, online states drawn from the replay buffer (once it holds any)."""
@@ -76,9 +81,11 @@ class Collector:
             action = agent.act(torch.as_tensor(self.obs, device=self.device), self.z).cpu().numpy()
             self.stats += action_stats(action)
         next_obs, _, terminated, truncated, info = self.bundle.env.step(action)
-        rows = self.buffer.add({"obs": self.obs, "action": action, "next_obs": info["final_obs"],
-                                "z": self.z.cpu().numpy(), "qpos": info["final_qpos"], "qvel": info["final_qvel"],
-                                "terminated": terminated})
+        transition = {"obs": self.obs, "action": action, "next_obs": info["final_obs"], "z": self.z.cpu().numpy(),
+                      "qpos": info["final_qpos"], "qvel": info["final_qvel"], "terminated": terminated}
+        if self.frames is not None:
+            transition["frame"] = self.frames.render(info["final_qpos"])
+        rows = self.buffer.add(transition)
         if self.batches is not None:
             self.batches.added(rows)
         if hasattr(agent, "observe"):  # agents that track their own progress (NEAR's annealing, in TD3 or FB-CPR)

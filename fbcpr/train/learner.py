@@ -38,7 +38,8 @@ class Learner:
             batch, windows = self.batches.sample(a.batch_size, a.batch_size // a.seq_length, a.seq_length, clips)
         else:
             batch = self.buffer.sample(self.rng, a.batch_size, fields=self.agent.fields,
-                                       history=getattr(self.agent, "history", 0))  # states before obs: sequence rewards
+                                       history=getattr(self.agent, "history", 0),  # states before obs: sequence rewards
+                                       frames=getattr(self.agent, "frame_size", 0) > 0)  # and their frames (video)
             library, w = self.bundle.library, a.batch_size // a.seq_length
             if clips:
                 frames, clip = library.sample_window_clips(self.rng, w, a.seq_length)

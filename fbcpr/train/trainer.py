@@ -63,7 +63,7 @@ from fbcpr.envs.bundle import make_env
 from fbcpr.eval.tracking import tracking_scores
 from fbcpr.metrics import EMDUnavailable
 from fbcpr.nn import distributed
-from fbcpr.train.buffer import ReplayBuffer, transition_specs
+from fbcpr.train.buffer import FRAME, ReplayBuffer, transition_specs
 from fbcpr.train.collector import Collector
 from fbcpr.train.device_batches import DeviceBatches
 from fbcpr.train.learner import Learner
@@ -161,6 +161,12 @@ class Trainer:
         if r.is_main and (self.out / "checkpoints").is_dir():
             remove_stale_temporaries(self.out / "checkpoints")
         specs = transition_specs(b.obs_dim, b.action_dim, self.agent.z_dim, b.nq, b.nv)
+        frame_size = getattr(self.agent, "frame_size", 0)  # a video reward: each s' rendered once, kept as a frame
+        if frame_size:
+            if tc.engine == "async":
+                raise ConfigError("train.engine: async workers do not render the frames this agent's video reward "
+                                  "reads; use sync")
+            specs[FRAME] = (frame_size, frame_size)
         mmap = self.out / ("buffer_mmap" if r.is_main else f"buffer_mmap_rank{r.rank}")
         self.buffer = ReplayBuffer(tc.buffer_capacity, specs, mmap if self._memmap_buffer else None, stride=tc.num_envs)
         self.batches: DeviceBatches | None = None  # train.device_buffer: update batches drawn on the device

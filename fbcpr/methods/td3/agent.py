@@ -46,6 +46,8 @@ class TD3Agent:
         self.task_reward, self.imitation = task_reward, imitation
         # states before s the trainer samples with each transition for a sequence reward (VIRL); 0: none
         self.history: int = getattr(imitation, "history", 0)
+        # side of the grey frame of each s' the collector renders for a video reward (VIRL on the humanoid); 0: none
+        self.frame_size: int = getattr(imitation, "frame_size", 0)
         self.num_updates = 0
 
     @classmethod
@@ -88,6 +90,8 @@ class TD3Agent:
             total = rc.task_weight * torch.as_tensor(np.asarray(task_r), dtype=torch.float32, device=self.device)
         if self.imitation is not None:
             seq = {"history": batch["history"]} if self.history else {}
+            if self.frame_size:
+                seq["frames"] = batch["frames"]
             r = rc.imitation_weight * self.imitation.reward(batch["obs"].to(self.device),
                                                             batch["next_obs"].to(self.device), **seq)
             total = r if total is None else total + r

@@ -1,8 +1,9 @@
 """VIRL's video input: small grey frames in [0, 1], rendered from states or read from a folder.
 
 - The point mass is rasterised (a soft dot on a dark arena, batched torch), so the toy can imitate "video".
-- Humanoid frames come from the tracking camera (`humanoid_env.render.TrackRenderer`), converted to grey and
-  resized; this costs ~0.1 s a frame on a software-GL CPU (docs/benchmarks.md), so training renders only the toy.
+- Humanoid frames come from the tracking camera (`humanoid_env.render.TrackRenderer`, plain: no shadows,
+  reflections, skybox or multisampling), in grey; a 64x64 frame costs a few ms on a software-GL CPU
+  (docs/benchmarks.md), so training renders each collected transition once and keeps the frame in the replay buffer.
 - A folder of image files (or .npy frames), sorted by name, is a demonstration video.
 """
 from __future__ import annotations
@@ -71,21 +72,38 @@ def save_frames(frames: np.ndarray, folder: str | Path) -> Path:
     return path
 
 
-def render_clip(qpos: np.ndarray, size: int) -> np.ndarray:
-    """Humanoid poses (T, nq) -> (T, size, size) grey frames from the tracking camera (needs an OpenGL backend)."""
-    import mujoco
+class HumanoidFrames:
+    """Grey uint8 frames (size x size) of humanoid poses from the tracking camera, one MuJoCo scene each (needs an
+    OpenGL backend). `plain` (the default) leaves out shadows, reflections, skybox and multisampling: a 64x64 frame
+    then costs a few ms on a software-GL CPU instead of ~0.1 s (docs/benchmarks.md), cheap enough to render every
+    collected transition once."""
 
-    from humanoid_env.model import load_model
-    from humanoid_env.render import TrackRenderer
+    def __init__(self, size: int, plain: bool = True) -> None:
+        import mujoco
 
-    model = load_model()
-    data = mujoco.MjData(model)
-    renderer = TrackRenderer(model, size, size)
+        from humanoid_env.model import load_model
+        from humanoid_env.render import TrackRenderer
+
+        model = load_model()
+        self.data = mujoco.MjData(model)
+        self.renderer = TrackRenderer(model, size, size, plain=plain)
+
+    def render(self, qpos: np.ndarray) -> np.ndarray:
+        """Poses (N, nq) -> (N, size, size) uint8 grey frames (mean of R, G, B)."""
+        out = []
+        for q in np.asarray(qpos):  # the renderer is not batched
+            self.data.qpos[:] = q
+            out.append(self.renderer.render(self.data).mean(-1).round().astype(np.uint8))
+        return np.stack(out)
+
+    def close(self) -> None:
+        self.renderer.close()
+
+
+def render_clip(qpos: np.ndarray, size: int, plain: bool = True) -> np.ndarray:
+    """Humanoid poses (T, nq) -> (T, size, size) grey frames in [0, 1] from the tracking camera (`HumanoidFrames`)."""
+    frames = HumanoidFrames(size, plain)
     try:
-        frames = []
-        for q in qpos:  # one MuJoCo scene per pose: the renderer is not batched
-            data.qpos[:] = q
-            frames.append(renderer.render(data))
+        return frames.render(qpos).astype(np.float32) / 255.0
     finally:
-        renderer.close()
-    return to_grey(np.stack(frames), size)
+        frames.close()

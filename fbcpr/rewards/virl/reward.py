@@ -11,6 +11,11 @@ paper's App. 7.3 describes: the distance is to the closest of a bank of demonstr
 The comparator keeps training online (one step per TD3 update, as AMP's discriminator): on the demonstration
 windows the trainer passes, the agent's own replay sequences (negatives), time manipulations of the demonstration
 and, with `multitask`, windows of other clips (`fbcpr.rewards.virl.losses`).
+
+Video input: the toy's states are rasterised as they come (batched torch). The humanoid's frames are rendered once
+per collected transition (`frame_size`: the collector renders s' the plain way, the replay buffer keeps it as uint8)
+and the agent passes the stored frames of history + s'; the demonstration video is the env's clips rendered the same
+way at start, or a folder of frames (`demo_frames`).
 """
 from __future__ import annotations
 
@@ -29,7 +34,7 @@ from fbcpr.rewards.virl.frames import load_frames, rasterize_points
 from fbcpr.rewards.virl.losses import make_pairs, virl_loss
 from fbcpr.rewards.virl.model import Comparator
 
-TOY_OBS_DIM = 2  # the point mass: the only env whose states the video path renders while training
+TOY_OBS_DIM = 2  # the point mass: the env whose states the video path rasterises; other envs' frames are stored
 
 
 def load_clips(spec: str) -> list[np.ndarray]:
@@ -64,11 +69,16 @@ class VIRLReward:
     def __init__(self, obs_dim: int, cfg: VIRLConfig, device: str | torch.device = "cpu", seed: int = 0,
                  library: Any = None) -> None:
         """`library` is not kept: the demonstration windows come with each `fit`, other clips from `cfg.multitask`."""
-        if cfg.input == "video" and obs_dim != TOY_OBS_DIM:
-            raise ConfigError("agent.virl.input: video renders the agent's states with the point-mass rasteriser "
-                              "only; the humanoid's replay batch holds observations, not poses, and rendering costs "
-                              "~0.1 s a frame on CPU (docs/algorithm.md): use state")
+        stored = cfg.input == "video" and obs_dim != TOY_OBS_DIM  # the humanoid: frames rendered at collection
+        if stored and cfg.multitask:
+            raise ConfigError("agent.virl.multitask: other clips are state sequences; with input: video on the "
+                              "humanoid the comparator's data is the demonstration video and the agent's frames: "
+                              "leave multitask out")
+        if stored and cfg.demo_frames is None and not getattr(library, "clips", None):
+            raise ConfigError("agent.virl.input: video on the humanoid needs demonstration clips to render (the env's "
+                              "motions) or agent.virl.demo_frames")
         self.cfg, self.device, self.obs_dim = cfg, torch.device(device), obs_dim
+        self.frame_size = cfg.image_size if stored else 0  # the agent asks the collector for frames of this side
         self.history = cfg.seq_length - 1          # states before s the agent asks the replay buffer for
         with torch.random.fork_rng(devices=[]):  # its own initialisation, leaving the caller's stream alone
             torch.manual_seed(seed + 2)
@@ -82,6 +92,12 @@ class VIRLReward:
         if cfg.demo_frames is not None:
             clip = torch.as_tensor(load_frames(cfg.demo_frames, cfg.image_size), device=self.device)
             self.frames = self._with_motion(windows_of(clip, cfg.seq_length))
+        elif stored:  # every window of each clip, rendered as the collector renders the agent's frames
+            from fbcpr.rewards.virl.frames import render_clip
+
+            self.frames = torch.cat([self._with_motion(windows_of(torch.as_tensor(
+                render_clip(np.asarray(c.qpos), cfg.image_size), device=self.device), cfg.seq_length))
+                for c in library.clips])
         width = (cfg.seq_length, obs_dim)
         self.bank = torch.zeros(cfg.bank_size, *width, device=self.device)  # raw demonstration windows (FIFO)
         self.bank_pos = self.bank_fill = 0
@@ -111,6 +127,16 @@ class VIRLReward:
         """history + s' (the last seq_length states), or (s, s') when no history is given."""
         seq = torch.cat([history, next_obs[:, None]], 1) if history is not None else torch.stack([obs, next_obs], 1)
         return seq[:, -self.cfg.seq_length:].to(self.device, torch.float32)
+
+    def _agent_inputs(self, obs: Tensor, next_obs: Tensor, history: Tensor | None, frames: Tensor | None) -> Tensor:
+        """Comparator inputs of the agent's sequences: its stored frames (uint8, history + s') for the humanoid's
+        video, else its states (history + s') as `_inputs` makes them."""
+        if not self.frame_size:
+            return self._inputs(self._agent_sequences(obs, next_obs, history))
+        if frames is None:
+            raise ValueError("VIRL video on the humanoid reads each transition's stored frames (batch['frames']); "
+                             "the replay buffer was sampled without them")
+        return self._with_motion(frames[:, -self.cfg.seq_length:].to(self.device, torch.float32) / 255.0)
 
     def _demo_windows(self, expert_windows: Tensor) -> Tensor:
         """This step's demonstration windows as comparator inputs (and the bank refreshed with them)."""
@@ -148,16 +174,22 @@ class VIRLReward:
         """One comparator step on demonstration windows vs the batch's agent sequences (and other clips)."""
         raw_demo = self._demo_windows(expert_windows)
         n = raw_demo.shape[0]
-        agent = self._agent_sequences(batch["obs"], batch["next_obs"], batch.get("history"))[:n]
-        if agent.shape[0] < n:
-            raise ValueError(f"VIRL needs at least {n} agent sequences per batch, got {agent.shape[0]}")
+        if batch["obs"].shape[0] < n:
+            raise ValueError(f"VIRL needs at least {n} agent sequences per batch, got {batch['obs'].shape[0]}")
         others, ids = self._other_windows(n, raw_demo[0, 0] if self.frames is None else None)
-        if self.cfg.input == "state":
-            states = [agent, raw_demo] + ([others] if others is not None else [])
-            self.normalizer.update(torch.cat([s.reshape(-1, self.obs_dim) for s in states]))
-            self.step_normalizer.update(torch.cat([torch.diff(s, dim=1).reshape(-1, self.obs_dim) for s in states]))
+        if self.frame_size:
+            frames = batch.get("frames")
+            agent_in = self._agent_inputs(batch["obs"], batch["next_obs"], None, None if frames is None else frames[:n])
+        else:
+            agent = self._agent_sequences(batch["obs"], batch["next_obs"], batch.get("history"))[:n]
+            if self.cfg.input == "state":
+                states = [agent, raw_demo] + ([others] if others is not None else [])
+                self.normalizer.update(torch.cat([s.reshape(-1, self.obs_dim) for s in states]))
+                self.step_normalizer.update(torch.cat([torch.diff(s, dim=1).reshape(-1, self.obs_dim)
+                                                       for s in states]))
+            agent_in = self._inputs(agent)
         demo = raw_demo if self.frames is not None else self._inputs(raw_demo)
-        pairs = make_pairs(demo, self._inputs(agent), None if others is None else self._inputs(others), ids,
+        pairs = make_pairs(demo, agent_in, None if others is None else self._inputs(others), ids,
                            self.cfg.noise, self.generator)
         c = self.cfg
         loss, parts = virl_loss(self.model, pairs, c.margin,
@@ -171,19 +203,24 @@ class VIRLReward:
     @torch.no_grad()
     def distance(self, seq: Tensor) -> Tensor:
         """(N,) blended distance of raw agent state sequences (N, T, obs_dim) to their closest demonstration window."""
+        return self._closest(self._inputs(seq.to(self.device, torch.float32)))
+
+    def _closest(self, x: Tensor) -> Tensor:
+        """(N,) blended distance of comparator inputs (N, L, *frame) to their closest demonstration window."""
         bank = self.frames if self.frames is not None else self._inputs(self.bank[:self.bank_fill])
         if len(bank) == 0:
             raise RuntimeError("VIRLReward: no demonstration windows yet (call fit first)")
-        e, h = self.model.encode(self._inputs(seq.to(self.device, torch.float32)))
+        e, h = self.model.encode(x)
         eb, hb = self.model.encode(bank)
         d = (self.cfg.seq_reward_weight * torch.cdist(h, hb)
              + self.cfg.frame_reward_weight * torch.cdist(e[:, -1], eb[:, -1]))
         return d.min(1).values
 
     @torch.no_grad()
-    def reward(self, obs: Tensor, next_obs: Tensor, z: Tensor | None = None, history: Tensor | None = None) -> Tensor:
-        """exp(-width * d^2) of the agent's sequences (history + s'); z is not used."""
-        d = self.distance(self._agent_sequences(obs.to(self.device), next_obs.to(self.device), history))
+    def reward(self, obs: Tensor, next_obs: Tensor, z: Tensor | None = None, history: Tensor | None = None,
+               frames: Tensor | None = None) -> Tensor:
+        """exp(-width * d^2) of the agent's sequences (history + s', or their stored frames); z is not used."""
+        d = self._closest(self._agent_inputs(obs.to(self.device), next_obs.to(self.device), history, frames))
         return torch.exp(-self.cfg.reward_width * d.square())
 
     # ------------------------------------------------------------------------------------------- state
