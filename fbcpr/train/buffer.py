@@ -94,10 +94,10 @@ class ReplayBuffer:
         repeated where the episode (or the buffer) began less than H steps before; with `frames` also "frames",
         (n, H + 1, size, size) uint8: the frames of s_{t-H+1}..s_{t+1} (the reset state has none: the episode's
         first frame stands in for it)."""
-        if self.size == 0:
-            raise RuntimeError("ReplayBuffer.sample: the buffer is empty")
         if frames and FRAME not in self.data:
             raise ValueError("ReplayBuffer.sample: frames asked of a buffer without a 'frame' field")
+        if self.size == 0:
+            raise RuntimeError("ReplayBuffer.sample: the buffer is empty")
         idx = np.sort(rng.integers(0, self.size, size=n))  # sorted: sequential reads on memmaps
         out = {k: torch.from_numpy(np.ascontiguousarray(self.data[k][idx])) for k in fields}
         if history > 0:
