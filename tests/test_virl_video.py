@@ -12,8 +12,8 @@ from fbcpr.rewards.virl.config import VIRLConfig
 from fbcpr.rewards.virl.frames import render_clip
 from fbcpr.rewards.virl.reward import VIRLReward
 from fbcpr.train.buffer import ReplayBuffer, transition_specs
-from humanoid_env.model import default_qpos
-from humanoid_env.render import renderer_available
+from humanoid_env.model import default_qpos, load_model
+from humanoid_env.render import TrackRenderer, renderer_available
 from motions.clip import from_qpos, save_clip
 from motions.library import MotionLibrary
 
@@ -31,6 +31,9 @@ def arm_rise(frames: int = 12):
 
 @needs_gl
 def test_plain_frame_shows_the_body_where_the_default_render_does():
+    model = load_model()
+    TrackRenderer(model, 16, 16, plain=True).close()
+    assert model.vis.quality.shadowsize > 0 and model.vis.quality.offsamples > 0  # the caller's model is left alone
     plain, default = (render_clip(default_qpos()[None], 64, plain=p)[0] for p in (True, False))
     body = plain > 0.3                                   # the body is lit grey; floor and plain sky are darker
     rows, cols = body.nonzero()

@@ -69,7 +69,7 @@ class ReplayBuffer:
         k = len(batch["obs"])
         arrays = {}
         for name, shape in self.specs.items():
-            arr = np.asarray(batch[name], dtype=self.dtype(name))
+            arr: np.ndarray = np.asarray(batch[name], dtype=self.dtype(name))
             if arr.shape != (k, *shape):
                 raise ValueError(f"ReplayBuffer.add: field {name!r} has shape {arr.shape}, expected {(k, *shape)}")
             arrays[name] = arr

@@ -30,7 +30,7 @@ from fbcpr.core.errors import ConfigError
 from fbcpr.nn.normalizer import RunningNormalizer
 from fbcpr.nn.optim_state import load_optimizer_state, optimizer_state
 from fbcpr.rewards.virl.config import VIRLConfig
-from fbcpr.rewards.virl.frames import load_frames, rasterize_points
+from fbcpr.rewards.virl.frames import load_frames, rasterize_points, render_clip
 from fbcpr.rewards.virl.losses import make_pairs, virl_loss
 from fbcpr.rewards.virl.model import Comparator
 
@@ -93,8 +93,6 @@ class VIRLReward:
             clip = torch.as_tensor(load_frames(cfg.demo_frames, cfg.image_size), device=self.device)
             self.frames = self._with_motion(windows_of(clip, cfg.seq_length))
         elif stored:  # every window of each clip, rendered as the collector renders the agent's frames
-            from fbcpr.rewards.virl.frames import render_clip
-
             self.frames = torch.cat([self._with_motion(windows_of(torch.as_tensor(
                 render_clip(np.asarray(c.qpos), cfg.image_size), device=self.device), cfg.seq_length))
                 for c in library.clips])
