@@ -201,7 +201,12 @@ class Prompt:
                               "file, not bare observations")
         clip = cast("Clip", clip)
         policy = cast(Policy, self.bfm)  # a BFM, which acts as well as it prompts
-        return refine_track(policy, clip.obs, (clip.qpos[0], clip.qvel[0]), self.track(clip), settings, num_threads)
+        alternatives = None
+        if settings.lookaheads:  # the tracking z's of other lookahead lengths, as starting centres
+            b = self.bfm.backward(clip.obs, as_tensor=True).double()
+            alternatives = np.stack([self._project(tracking_sums(b, length)[:-1]) for length in settings.lookaheads])
+        return refine_track(policy, clip.obs, (clip.qpos[0], clip.qvel[0]), self.track(clip), settings, num_threads,
+                            alternatives=alternatives)
 
     def imitate(self, motion: MotionSpec) -> np.ndarray:
         """One z for a whole motion: ER_FB, the mean of B over all its states."""
