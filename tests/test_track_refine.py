@@ -128,8 +128,8 @@ def test_bare_observations_cannot_be_refined(bfm, clip):
 
 def test_cli_refines_and_prints_its_cost(ckpt, clip, tmp_path):
     path, video = save_clip(clip, tmp_path / "arm_rise.npz"), tmp_path / "track.mp4"
-    args = ["track", str(ckpt), str(path), "--refine", "3", "--refine-rounds", "1", "--refine-window", "4",
-            "--refine-horizon", "5"]
+    args = ["track", str(ckpt), str(path), "--refine", "3", "--refine-rounds", "1", "--refine-position-weight", "5",
+            "--refine-window", "4", "--refine-horizon", "5"]
     res = CliRunner().invoke(app, args + (["--video", str(video)] if renderer_available() else []))
     assert res.exit_code == 0, res.output
     if renderer_available():  # the states the search executed, rendered beside the reference
