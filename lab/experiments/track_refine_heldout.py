@@ -23,7 +23,7 @@ import torch
 from fbcpr.eval.runner import hold_first_pose
 from fbcpr.inference.bfm import BFM
 from fbcpr.inference.prompt import load_motion
-from fbcpr.inference.track_refine import Receding
+from fbcpr.inference.track_refine import Receding, refine_track
 from fbcpr.metrics import emd, mpjpe
 from humanoid_env.env import FALLEN_HEIGHT
 from humanoid_env.vector import VectorHumanoidEnv
@@ -90,6 +90,8 @@ def main() -> None:
     ap.add_argument("--position-weight", type=float, default=0.0)
     ap.add_argument("--leads", type=int, nargs="*", default=[])
     ap.add_argument("--lookaheads", type=int, nargs="*", default=[])
+    ap.add_argument("--plan-unpinned", action="store_true",
+                    help="plan against the unpinned reference (scored against the clip as it is)")
     ap.add_argument("--cold", action="store_true", help="no warm start from the last window's shift")
     ap.add_argument("--threads", type=int, default=1, help="MuJoCo threads of the batched envs")
     ap.add_argument("--max-frames", type=int, default=0, help="cut each clip to this many frames (0: whole)")
@@ -111,7 +113,12 @@ def main() -> None:
         z_obs, z_qpos, z_div = zero_shot(bfm, clip, zs)
         load0 = os.getloadavg()[0]
         t = time.perf_counter()
-        res = bfm.prompt.track_refined(clip, settings, num_threads=args.threads)
+        if args.plan_unpinned:  # from the clip's own first state, z's and planning cost from the unpinned clip
+            plan = unpinned(clip)
+            res = refine_track(bfm, plan.obs, (clip.qpos[0], clip.qvel[0]), bfm.prompt.track(plan), settings,
+                               num_threads=args.threads)
+        else:
+            res = bfm.prompt.track_refined(clip, settings, num_threads=args.threads)
         wall = time.perf_counter() - t
         floor = hold_first_pose(clip)
         row = {"clip": clip.name, "frames": clip.n_frames,
