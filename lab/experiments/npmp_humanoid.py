@@ -1,0 +1,170 @@
+"""NPMP on the humanoid (issue 76, item 1): an NPMP distilled from the shipped model on the tracking split's training
+takes only (lab/splits/train-tracking.txt, imported flat in data/clips/tracking/train), then
+
+- `track`: one-shot tracking of the held-out split (lab/splits/heldout-tracking.txt) through the NPMP's encoder,
+  next to the expert's own zero-shot tracking and the first-pose floor, with heldout_tracking.py's measures
+  (MPJPE and EMD against the floor, falls), clip by clip and in the mean;
+- `reuse`: one TD3 run (fbcpr/configs/td3-cpu.yaml on `--task`) either on raw actions or in the NPMP's latent
+  space (`env.npmp`), evaluated every `--eval-every` env steps (10 episodes of 300 steps from the env's initial
+  state, deterministic policy), its curve written to OUT/<agent>-seed<k>/curve.json; one run per call, so runs go
+  one at a time;
+- `plot`: both agents' curves in one figure (npmp_reuse_toy.py's panel) and RESULT lines.
+
+    fbcpr npmp distill pretrained --motions data/clips/tracking/train --out runs/s72/npmp-bc --method bc \\
+        --preset cpu --rollouts 8 --max-steps 200 --steps 15000 --checkpoint-every 2500 --seed 0
+    python lab/experiments/npmp_humanoid.py track runs/s72/npmp-bc --seed 6303 --out runs/s72/track.json
+    for s in 0 1 2; do for a in td3-raw td3-npmp; do
+        python lab/experiments/npmp_humanoid.py reuse runs/s72/npmp-bc --agent $a --seed $s --out runs/s72/reuse
+    done; done
+    python lab/experiments/npmp_humanoid.py plot runs/s72/reuse --png lab/img/npmp_humanoid_reuse.png
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from heldout_tracking import diagnose, summarise  # sibling scripts: the held-out measures, the toy's TD3 runs
+from npmp_reuse_toy import plot_panel, random_reference, run
+from tracking_split import clip_file, read_split
+
+from fbcpr.core.config import find_config, load_config
+from fbcpr.inference.agents import load_tracker
+from fbcpr.inference.bfm import BFM, resolve_checkpoint
+from motions.clip import load_clip
+
+EPISODES, HORIZON = 10, 300
+AGENTS = ("td3-raw", "td3-npmp")
+
+
+def track(args: argparse.Namespace) -> None:
+    """Each held-out take tracked by the expert (zero-shot) and by the NPMP (one-shot, its encoder's z's)."""
+    npmp = load_tracker(args.npmp)
+    expert = str(getattr(npmp, "info", {}).get("expert", "pretrained"))
+    agents: dict[str, Any] = {"npmp": npmp}
+    rows: dict[str, list[dict]] = {"bfm": [], "npmp": []}
+    if args.expert_rows is None:
+        agents["bfm"] = BFM.load(expert)
+    else:  # the expert's rollouts are deterministic (lab/log.md 63): its recorded rows, same seed and code
+        recorded = json.loads(args.expert_rows.read_text())
+        if recorded["checkpoint"] != expert or recorded["seed"] != args.seed:
+            raise SystemExit(f"{args.expert_rows}: {recorded['checkpoint']} at seed {recorded['seed']}, not {expert} "
+                             f"at seed {args.seed}")
+        rows["bfm"] = recorded["clips"]
+    for take in read_split(args.split):
+        clip = load_clip(clip_file(take, args.clips))
+        for name, agent in agents.items():
+            row = {**diagnose(agent, clip, args.seed), "take": take}
+            rows[name].append(row)
+            print(name, json.dumps(row), flush=True)
+    if [r["take"] for r in rows["bfm"]] != [r["take"] for r in rows["npmp"]]:
+        raise SystemExit("the expert's rows and the NPMP's are not the same takes in the same order")
+    means = {name: summarise(r) for name, r in rows.items()}
+    per_clip = {k: [n[k] / b[k] for n, b in zip(rows["npmp"], rows["bfm"])] for k in ("mpjpe", "emd")}
+    relative = {"mpjpe": means["npmp"]["mpjpe"] / means["bfm"]["mpjpe"],
+                "emd": means["npmp"]["emd"] / means["bfm"]["emd"],
+                "mpjpe_median_per_clip": float(np.median(per_clip["mpjpe"])),
+                "emd_median_per_clip": float(np.median(per_clip["emd"]))}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"npmp": args.npmp, "expert": expert, "seed": args.seed, "clips": rows,
+                                    "means": means, "npmp_over_bfm": relative}, indent=1))
+    print("| take | MPJPE floor | BFM | NPMP | NPMP / BFM | EMD floor | BFM | NPMP | NPMP / BFM | BFM | NPMP |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
+    for b, n in zip(rows["bfm"], rows["npmp"]):
+        print(f"| {b['take'].removeprefix('cmu/')} | {b['mpjpe_floor']:.3f} | {b['mpjpe']:.3f} | {n['mpjpe']:.3f} | "
+              f"{n['mpjpe'] / b['mpjpe']:.2f} | {b['emd_floor']:.2f} | {b['emd']:.2f} | {n['emd']:.2f} | "
+              f"{n['emd'] / b['emd']:.2f} | {b['verdict']} | {n['verdict']} |")
+    for name, m in means.items():
+        print(f"RESULT method={name} split=heldout-tracking clips={m['clips']} mpjpe={m['mpjpe']:.3f} "
+              f"mpjpe_floor={m['mpjpe_floor']:.3f} emd={m['emd']:.3f} emd_floor={m['emd_floor']:.3f} "
+              f"falls={m['falls']}")
+    print(f"NPMP / BFM: MPJPE {relative['mpjpe']:.2f}x (median per clip {relative['mpjpe_median_per_clip']:.2f}), "
+          f"EMD {relative['emd']:.2f}x (median per clip {relative['emd_median_per_clip']:.2f})")
+
+
+def reuse_config(npmp: str | None, task: str, steps: int, eval_every: int, warmup: int, seed: int) -> Any:
+    """td3-cpu.yaml on `task` at `steps` env steps, in the latent space of the NPMP checkpoint `npmp` if given."""
+    cfg = load_config(find_config("td3-cpu"))
+    env = cfg.env if npmp is None else replace(cfg.env, npmp=npmp)
+    return replace(cfg, env=env, agent=replace(cfg.agent, reward=replace(cfg.agent.reward, task=task)),
+                   train=replace(cfg.train, total_env_steps=steps, eval_every=eval_every, warmup_steps=warmup,
+                                 checkpoint_every=eval_every * 2, seed=seed))
+
+
+def reuse(args: argparse.Namespace) -> None:
+    """One TD3 run; its curve (and the random policy's return in the same action space) to OUT/<agent>-seed<k>."""
+    npmp = str(resolve_checkpoint(args.npmp)) if args.agent == "td3-npmp" else None
+    cfg = reuse_config(npmp, args.task, args.steps, args.eval_every, args.warmup, args.seed)
+    out = args.out / f"{args.agent}-seed{args.seed}"
+    if (out / "curve.json").exists():
+        print(f"{out}: done already")
+        return
+    steps, curve, seconds = run(cfg, out, args.task, args.seed, EPISODES, HORIZON)
+    rand = random_reference(cfg, args.task, EPISODES, HORIZON)
+    (out / "curve.json").write_text(json.dumps({"agent": args.agent, "seed": args.seed, "task": args.task,
+                                                "npmp": npmp, "steps": steps, "curve": curve, "seconds": seconds,
+                                                "random": rand}, indent=1))
+    print(f"{args.agent} seed {args.seed} ({seconds:.0f} s): return " + " ".join(f"{r['return']:.1f}" for r in curve))
+
+
+def plot(args: argparse.Namespace) -> None:
+    """Both agents' curves (mean over seeds, min-max band, random policy dotted) in one figure; RESULT lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curves: dict[str, Any] = {}
+    for path in sorted(args.runs.glob("*/curve.json")):
+        c = json.loads(path.read_text())
+        entry = curves.setdefault(c["agent"], {"steps": c["steps"], "seeds": {}, "random": c["random"], "seconds": {}})
+        entry["seeds"][c["seed"]], entry["seconds"][c["seed"]] = c["curve"], c["seconds"]
+        task = c["task"]
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    plot_panel(ax, {name: curves[name] for name in AGENTS if name in curves}, task, HORIZON)
+    ax.set_title("Humanoid: TD3 in the NPMP's latent space vs raw actions\nmean, min-max band; dotted: random policy",
+                 fontsize=10)
+    fig.tight_layout()
+    args.png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args.png, dpi=110)
+    for name, c in curves.items():
+        final = {s: rows[-1]["return"] for s, rows in sorted(c["seeds"].items())}
+        print(f"RESULT method={'npmp' if name == 'td3-npmp' else 'td3'} agent={name} task={task} "
+              f"env_steps={c['steps'][-1]} seeds={len(final)} return={np.mean(list(final.values())):.2f} "
+              f"per_seed={','.join(f'{v:.2f}' for v in final.values())} random={c['random']['return']:.2f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    t = sub.add_parser("track", help="one-shot tracking of the held-out split, next to the expert and the floor")
+    t.add_argument("npmp", help="an NPMP run directory or checkpoint")
+    t.add_argument("--split", type=Path, default=Path("lab/splits/heldout-tracking.txt"))
+    t.add_argument("--clips", type=Path, default=Path("data/clips/cmu-all"))
+    t.add_argument("--seed", type=int, required=True)
+    t.add_argument("--out", type=Path, required=True)
+    t.add_argument("--expert-rows", type=Path, default=None,
+                   help="heldout_tracking.py's JSON of the expert at the same seed, instead of rolling it out again")
+    r = sub.add_parser("reuse", help="one TD3 run on raw actions or in the NPMP's latent space")
+    r.add_argument("npmp", help="an NPMP run directory or checkpoint")
+    r.add_argument("--agent", choices=AGENTS, required=True)
+    r.add_argument("--seed", type=int, required=True)
+    r.add_argument("--task", default="move-ego-90-2")
+    r.add_argument("--steps", type=int, default=30_000, help="env steps of the run")
+    r.add_argument("--eval-every", type=int, default=5_000)
+    r.add_argument("--warmup", type=int, default=5_000, help="env steps of random actions before updates")
+    r.add_argument("--out", type=Path, required=True)
+    p = sub.add_parser("plot", help="the learning curves of OUT/*/curve.json in one figure")
+    p.add_argument("runs", type=Path)
+    p.add_argument("--png", type=Path, required=True)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    {"track": track, "reuse": reuse, "plot": plot}[args.command](args)
+
+
+if __name__ == "__main__":
+    main()
