@@ -32,10 +32,11 @@ from heldout_tracking import diagnose, summarise  # sibling scripts: the held-ou
 from npmp_reuse_toy import plot_panel, random_reference, run
 from tracking_split import clip_file, read_split
 
+from fbcpr.cli.prompt_cmd import rollout
 from fbcpr.core.config import find_config, load_config
 from fbcpr.inference.agents import load_tracker
 from fbcpr.inference.bfm import BFM, resolve_checkpoint
-from motions.clip import load_clip
+from motions.clip import Clip, load_clip
 
 EPISODES, HORIZON = 10, 300
 AGENTS = ("td3-raw", "td3-npmp")
@@ -79,11 +80,38 @@ def track(args: argparse.Namespace) -> None:
               f"{n['mpjpe'] / b['mpjpe']:.2f} | {b['emd_floor']:.2f} | {b['emd']:.2f} | {n['emd']:.2f} | "
               f"{n['emd'] / b['emd']:.2f} | {b['verdict']} | {n['verdict']} |")
     for name, m in means.items():
-        print(f"RESULT method={name} split=heldout-tracking clips={m['clips']} mpjpe={m['mpjpe']:.3f} "
+        print(f"RESULT method={name} split={args.split.stem} clips={m['clips']} mpjpe={m['mpjpe']:.3f} "
               f"mpjpe_floor={m['mpjpe_floor']:.3f} emd={m['emd']:.3f} emd_floor={m['emd_floor']:.3f} "
               f"falls={m['falls']}")
     print(f"NPMP / BFM: MPJPE {relative['mpjpe']:.2f}x (median per clip {relative['mpjpe_median_per_clip']:.2f}), "
           f"EMD {relative['emd']:.2f}x (median per clip {relative['emd_median_per_clip']:.2f})")
+
+
+def expert_reference(args: argparse.Namespace) -> None:
+    """Diagnostic: the NPMP tracking the expert's own rollout of each take (the kind of trajectory its encoder was
+    trained on: BC data are the expert's visited states), next to tracking the clip itself."""
+    npmp = load_tracker(args.npmp)
+    expert = BFM.load(str(getattr(npmp, "info", {}).get("expert", "pretrained")))
+    rows: dict[str, list[dict]] = {"clip": [], "expert_rollout": []}
+    for take in read_split(args.split):
+        clip = load_clip(clip_file(take, args.clips))
+        ep = rollout(expert, expert.track_z(clip), seed=args.seed, start=(clip.qpos[0], clip.qvel[0]),
+                     label=f"expert {clip.name}")
+        own = Clip(qpos=np.stack(ep.qpos), qvel=np.stack(ep.qvel), obs=np.stack(ep.obs).astype(np.float32),
+                   name=f"{clip.name}-expert")
+        for name, ref in (("clip", clip), ("expert_rollout", own)):
+            rows[name].append({**diagnose(npmp, ref, args.seed), "take": take})
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"npmp": args.npmp, "seed": args.seed, "clips": rows}, indent=1))
+    print("| take | NPMP on the clip: MPJPE / floor | verdict | on the expert's rollout: MPJPE / floor | verdict |")
+    print("|---|---:|---|---:|---|")
+    for c, e in zip(rows["clip"], rows["expert_rollout"]):
+        print(f"| {c['take'].removeprefix('cmu/')} | {c['mpjpe']:.3f} / {c['mpjpe_floor']:.3f} | {c['verdict']} | "
+              f"{e['mpjpe']:.3f} / {e['mpjpe_floor']:.3f} | {e['verdict']} |")
+    for name, r in rows.items():
+        m = summarise(r)
+        print(f"reference {name}: MPJPE {m['mpjpe']:.3f} / floor {m['mpjpe_floor']:.3f} = {m['mpjpe_ratio']:.2f}x; "
+              f"EMD {m['emd']:.2f} / floor {m['emd_floor']:.2f}; falls {m['falls']} of {m['clips']}")
 
 
 def reuse_config(npmp: str | None, task: str, steps: int, eval_every: int, warmup: int, seed: int) -> Any:
@@ -149,6 +177,12 @@ def main() -> None:
     t.add_argument("--out", type=Path, required=True)
     t.add_argument("--expert-rows", type=Path, default=None,
                    help="heldout_tracking.py's JSON of the expert at the same seed, instead of rolling it out again")
+    e = sub.add_parser("expert-ref", help="diagnostic: the NPMP tracking the expert's rollouts instead of the clips")
+    e.add_argument("npmp", help="an NPMP run directory or checkpoint")
+    e.add_argument("--split", type=Path, default=Path("lab/splits/heldout-tracking.txt"))
+    e.add_argument("--clips", type=Path, default=Path("data/clips/cmu-all"))
+    e.add_argument("--seed", type=int, required=True)
+    e.add_argument("--out", type=Path, required=True)
     r = sub.add_parser("reuse", help="one TD3 run on raw actions or in the NPMP's latent space")
     r.add_argument("npmp", help="an NPMP run directory or checkpoint")
     r.add_argument("--agent", choices=AGENTS, required=True)
@@ -163,7 +197,7 @@ def main() -> None:
     p.add_argument("--png", type=Path, required=True)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    {"track": track, "reuse": reuse, "plot": plot}[args.command](args)
+    {"track": track, "expert-ref": expert_reference, "reuse": reuse, "plot": plot}[args.command](args)
 
 
 if __name__ == "__main__":
