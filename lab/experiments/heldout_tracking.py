@@ -45,8 +45,9 @@ def best_lag(agent: np.ndarray, ref: np.ndarray) -> tuple[int, float]:
 
 
 def diagnose(agent: Any, clip: Clip, seed: int) -> dict:
-    """The measures above for any tracking agent (a `BFM`, an NPMP's `NPMPAgent`): z_t from its `track_z`."""
-    zs = agent.track_z(clip)
+    """The measures above for any tracking agent (a `BFM`, an NPMP's `NPMPAgent`): z_t from its `track_z` of the
+    clip's observations."""
+    zs = agent.track_z(clip.obs)
     ep = rollout(agent, zs, seed=seed, start=(clip.qpos[0], clip.qvel[0]), label=f"track {clip.name}")
     n = min(len(ep.obs), clip.n_frames)
     agent, ref, qpos = np.stack(ep.obs)[:n], clip.obs[:n], np.stack(ep.qpos)[:n]
