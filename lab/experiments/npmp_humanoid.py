@@ -33,9 +33,13 @@ from npmp_reuse_toy import plot_panel, random_reference, run
 from tracking_split import clip_file, read_split
 
 from fbcpr.cli.prompt_cmd import rollout
+from fbcpr.core.checkpoint import load_checkpoint
 from fbcpr.core.config import find_config, load_config
+from fbcpr.envs.bundle import make_env
+from fbcpr.eval.rollout import rollout as step_through
 from fbcpr.inference.agents import load_tracker
 from fbcpr.inference.bfm import BFM, resolve_checkpoint
+from humanoid_env.env import FALLEN_HEIGHT
 from motions.clip import Clip, load_clip
 
 EPISODES, HORIZON = 10, 300
@@ -139,6 +143,36 @@ def reuse(args: argparse.Namespace) -> None:
     print(f"{args.agent} seed {args.seed} ({seconds:.0f} s): return " + " ".join(f"{r['return']:.1f}" for r in curve))
 
 
+def upright_share(act: Any, bundle: Any, seed: int = 1000) -> float:
+    """Share of the evaluation's steps (EPISODES x HORIZON, the return's starts) with the pelvis at or above the
+    fallen height: how long a policy keeps the body up, for the return's upright factor."""
+    env, heights = bundle.make_eval_env(EPISODES, HORIZON + 1), []
+    try:
+        obs, _ = env.reset(seed=seed)
+        step_through(env, obs, lambda t, o: act(np.asarray(o, np.float32)), HORIZON,
+                lambda step: heights.append(np.asarray(step.info["final_obs"])[:, 0]))
+    finally:
+        env.close()
+    return float((np.stack(heights) >= FALLEN_HEIGHT).mean())
+
+
+def upright(args: argparse.Namespace) -> None:
+    """Upright share of each run's last checkpoint and of the random policy in each action space."""
+    rows = []
+    for path in sorted(args.runs.glob("*/curve.json")):
+        c = json.loads(path.read_text())
+        cfg = reuse_config(c["npmp"], c["task"], 1, 1, 1, c["seed"])
+        bundle = make_env(cfg.env, 1, 0)
+        model = load_checkpoint(resolve_checkpoint(str(path.parent)), "cpu").model
+        rows.append((c["agent"], c["seed"], upright_share(lambda o: model.act(o, mean=True), bundle)))
+        if c["agent"] not in {r[0] for r in rows[:-1]}:  # once per action space: the random policy
+            rng = np.random.default_rng(0)
+            rows.append((c["agent"], "random", upright_share(
+                lambda o: rng.uniform(-1, 1, (len(o), bundle.action_dim)).astype(np.float32), bundle)))
+    for agent, seed, share in rows:
+        print(f"{agent} {seed}: upright {share:.3f}")
+
+
 def plot(args: argparse.Namespace) -> None:
     """Both agents' curves (mean over seeds, min-max band, random policy dotted) in one figure; RESULT lines."""
     import matplotlib
@@ -192,12 +226,15 @@ def main() -> None:
     r.add_argument("--eval-every", type=int, default=5_000)
     r.add_argument("--warmup", type=int, default=5_000, help="env steps of random actions before updates")
     r.add_argument("--out", type=Path, required=True)
+    u = sub.add_parser("upright", help="share of upright steps of each run's last policy and of random ones")
+    u.add_argument("runs", type=Path)
     p = sub.add_parser("plot", help="the learning curves of OUT/*/curve.json in one figure")
     p.add_argument("runs", type=Path)
     p.add_argument("--png", type=Path, required=True)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    {"track": track, "expert-ref": expert_reference, "reuse": reuse, "plot": plot}[args.command](args)
+    commands = {"track": track, "expert-ref": expert_reference, "reuse": reuse, "upright": upright, "plot": plot}
+    commands[args.command](args)
 
 
 if __name__ == "__main__":
