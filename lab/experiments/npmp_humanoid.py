@@ -8,15 +8,18 @@ takes only (lab/splits/train-tracking.txt, imported flat in data/clips/tracking/
   space (`env.npmp`), evaluated every `--eval-every` env steps (10 episodes of 300 steps from the env's initial
   state, deterministic policy), its curve written to OUT/<agent>-seed<k>/curve.json; one run per call, so runs go
   one at a time;
-- `plot`: both agents' curves in one figure (npmp_reuse_toy.py's panel) and RESULT lines.
+- `plot`: both agents' curves in one figure (npmp_reuse_toy.py's panel) and RESULT lines;
+- diagnostics: `expert-ref` (the NPMP tracking the expert's own rollouts of the takes instead of the clips) and
+  `upright` (the share of upright steps of each run's last policy and of random ones in both action spaces).
 
     fbcpr npmp distill pretrained --motions data/clips/tracking/train --out runs/s72/npmp-bc --method bc \\
         --preset cpu --rollouts 8 --max-steps 200 --steps 15000 --checkpoint-every 2500 --seed 0
-    python lab/experiments/npmp_humanoid.py track runs/s72/npmp-bc --seed 6303 --out runs/s72/track.json
+    python lab/experiments/npmp_humanoid.py track runs/s72/npmp-bc --seed 6901 --out runs/s72/track.json
     for s in 0 1 2; do for a in td3-raw td3-npmp; do
         python lab/experiments/npmp_humanoid.py reuse runs/s72/npmp-bc --agent $a --seed $s --out runs/s72/reuse
     done; done
     python lab/experiments/npmp_humanoid.py plot runs/s72/reuse --png lab/img/npmp_humanoid_reuse.png
+    python lab/experiments/npmp_humanoid.py upright runs/s72/reuse
 """
 from __future__ import annotations
 
