@@ -82,12 +82,34 @@ def test_the_search_never_costs_more_than_the_B_given_zs(bfm, clip):
     assert one.window_z.shape == (1, bfm.z_dim) and refined_cost <= zero_cost + 1e-6
 
 
+def test_other_starts_and_a_position_term_keep_the_B_given_zs_a_candidate(bfm, clip):
+    # leads and lookaheads add starting centres scored beside z̄ and the warm start; the position term changes the
+    # planning cost, and the kept candidate never costs more than the B-given one on it
+    wide = Receding(candidates=4, rounds=2, window=4, horizon=6, seed=3, position_weight=10.0, leads=(2,),
+                    lookaheads=(1, 4))
+    res = bfm.prompt.track_refined(clip, wide)
+    assert np.all(res.plan_cost <= res.plan_cost0)
+    # a window: z̄, the warm start after the first, one lead and two lookaheads, then 2 rounds of 4 and the last mean
+    assert res.rollouts == 3 * (1 + 3 + 4 * 2 + 1) + 2
+    np.testing.assert_allclose(replay(bfm, clip, res.zs), res.obs, atol=1e-4)
+    # the first window's B-given cost is zero-shot tracking's d_smpl plus 10 x its per-step body-position error
+    zero = replay(bfm, clip, bfm.prompt.track(clip)[:6])
+    pos = np.linalg.norm((zero[1:, 1:70] - clip.obs[1:7, 1:70]).reshape(6, 23, 3), axis=-1).mean(-1)
+    assert res.plan_cost0[0] == pytest.approx((d_smpl(zero[1:], clip.obs[1:7]) + 10.0 * pos).mean(), rel=1e-4)
+    with pytest.raises(PromptError, match="alternatives must be"):
+        refine_track(bfm, clip.obs, (clip.qpos[0], clip.qvel[0]), bfm.prompt.track(clip), QUICK,
+                     alternatives=np.ones((2, 3, bfm.z_dim)))
+
+
 @pytest.mark.parametrize("refine, message", [
     (Receding(window=0), "window must be a positive integer"),
     (Receding(window=8, horizon=4), "horizon (4) must be at least the window (8)"),
     (Receding(candidates=1), "candidates must be an integer >= 2, got 1"),
     (Receding(rounds=0), "rounds must be an integer >= 1, got 0"),
     (Receding(sigma=float("nan")), "sigma must be a finite number"),
+    (Receding(position_weight=-1.0), "position_weight must be >= 0"),
+    (Receding(leads=(0,)), "leads must be positive integers"),
+    (Receding(lookaheads=(2, True)), "lookaheads must be positive integers"),
     (1, "candidates a round must be an integer >= 2"),
     (-3, "candidates a round must be an integer >= 2"),
     (True, "candidates a round must be an integer >= 2"),
@@ -106,8 +128,8 @@ def test_bare_observations_cannot_be_refined(bfm, clip):
 
 def test_cli_refines_and_prints_its_cost(ckpt, clip, tmp_path):
     path, video = save_clip(clip, tmp_path / "arm_rise.npz"), tmp_path / "track.mp4"
-    args = ["track", str(ckpt), str(path), "--refine", "3", "--refine-rounds", "1", "--refine-window", "4",
-            "--refine-horizon", "5"]
+    args = ["track", str(ckpt), str(path), "--refine", "3", "--refine-rounds", "1", "--refine-position-weight", "5",
+            "--refine-window", "4", "--refine-horizon", "5"]
     res = CliRunner().invoke(app, args + (["--video", str(video)] if renderer_available() else []))
     assert res.exit_code == 0, res.output
     if renderer_available():  # the states the search executed, rendered beside the reference

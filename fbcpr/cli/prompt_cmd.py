@@ -283,6 +283,9 @@ def track_command(
     window: int = typer.Option(8, "--refine-window", min=1, help="Steps executed per window before searching again."),
     horizon: int = typer.Option(24, "--refine-horizon", min=1, help="Steps each candidate is rolled out and scored "
                                 "(at least the window: it judges where a candidate leaves the body)."),
+    position_weight: float = typer.Option(0.0, "--refine-position-weight", min=0.0,
+                                          help="Weight of the per-step body-position error (metres) added to the "
+                                               "search's d_smpl cost."),
     seed: int = typer.Option(0, "--seed", help="Seed of the search's candidate draws."),
 ) -> None:
     """Track a clip with one z per step and print tracking success (d_smpl <= 0.5 throughout), EMD and the
@@ -296,7 +299,8 @@ def track_command(
     from fbcpr.metrics import d_smpl, emd, mpjpe, tracking_success
 
     ckpt, clip_path = model_and(args, "CLIP")
-    settings = Receding(candidates=refine, rounds=rounds, window=window, horizon=horizon, seed=seed)
+    settings = Receding(candidates=refine, rounds=rounds, window=window, horizon=horizon, seed=seed,
+                        position_weight=position_weight)
     if refine:
         settings.check()  # before any model is loaded or frame simulated
     if video is not None:
@@ -312,11 +316,8 @@ def track_command(
             raise typer.BadParameter("--refine searches a BFM's z's; this checkpoint is not a BFM")
         with progress() as bar:
             task = bar.add_task("refine, windows", total=-(-(clip.n_frames - 1) // window))
-            zs0 = agent.prompt.track(clip)
-            from fbcpr.inference.track_refine import refine_track
-
-            refined = refine_track(agent, clip.obs, (clip.qpos[0], clip.qvel[0]), zs0, settings,
-                                   on_window=lambda done, total: bar.update(task, completed=done))
+            refined = agent.prompt.track_refined(clip, settings,
+                                                 on_window=lambda done, total: bar.update(task, completed=done))
         ep = Episode(obs=list(refined.obs), qpos=list(refined.qpos), qvel=list(refined.qvel),
                      diverged_at=refined.diverged_at)
         if video is not None:

@@ -183,9 +183,11 @@ class Prompt:
         return self.track_refined(motion, refine, num_threads).zs
 
     def track_refined(self, motion: MotionSpec, refine: int | Receding | None = None,
-                      num_threads: int | None = None) -> TrackRefined:
+                      num_threads: int | None = None,
+                      on_window: Callable[[int, int], None] | None = None) -> TrackRefined:
         """The B-given tracking z's refined by rollouts from the clip's first state; `refine` is the number of
-        candidates a round or a `Receding` of all the settings (None: its defaults; `fbcpr.inference.track_refine`)."""
+        candidates a round or a `Receding` of all the settings (None: its defaults; `fbcpr.inference.track_refine`).
+        `on_window(done, total)` after every window (a progress bar)."""
         from fbcpr.inference.refine import Policy
         from fbcpr.inference.track_refine import refine_track
 
@@ -201,7 +203,12 @@ class Prompt:
                               "file, not bare observations")
         clip = cast("Clip", clip)
         policy = cast(Policy, self.bfm)  # a BFM, which acts as well as it prompts
-        return refine_track(policy, clip.obs, (clip.qpos[0], clip.qvel[0]), self.track(clip), settings, num_threads)
+        alternatives = None
+        if settings.lookaheads:  # the tracking z's of other lookahead lengths, as starting centres
+            b = self.bfm.backward(clip.obs, as_tensor=True).double()
+            alternatives = np.stack([self._project(tracking_sums(b, length)[:-1]) for length in settings.lookaheads])
+        return refine_track(policy, clip.obs, (clip.qpos[0], clip.qvel[0]), self.track(clip), settings, num_threads,
+                            on_window=on_window, alternatives=alternatives)
 
     def imitate(self, motion: MotionSpec) -> np.ndarray:
         """One z for a whole motion: ER_FB, the mean of B over all its states."""

@@ -14,6 +14,10 @@ body is. Here the clip is cut into windows of `window` steps, and at each window
   around the elites of the last, from z̄ (or, with `warm`, from z̄ shifted as the last window's kept centre was,
   z̄ then scored on its own); the cheapest candidate of any round is kept, so the kept one never costs more than
   zero-shot on the window's planning objective;
+- optional: `position_weight` adds the step's mean body-position error (the MPJPE of one step, metres) to the
+  planning cost; `leads` and `lookaheads` add starting centres (the B-given z's of a few steps later, for a body
+  that lags; those of other lookahead lengths), scored with z̄ and the warm start, the search starting from the
+  cheapest;
 - the kept candidate's first `window` steps are executed (its simulator state after them is kept exactly, not
   simulated again) and the next window starts there.
 
@@ -48,6 +52,9 @@ class Receding:
     decay: float = 0.6     # sigma shrinks by this each round
     warm: bool = True      # start each window's search from the last window's shift (the B-given z's still a candidate)
     seed: int = 0
+    position_weight: float = 0.0  # planning cost: d_smpl + this x the step's mean body-position error (metres)
+    leads: tuple[int, ...] = ()   # also start from the B-given z's this many steps ahead (the body lags the clip)
+    lookaheads: tuple[int, ...] = ()  # and from B-given z's of these lookahead lengths (`Prompt.track_refined`)
 
     def search(self, offset: int = 0) -> Search:
         """The cross-entropy settings of one window (its own noise: seed + offset)."""
@@ -63,6 +70,11 @@ class Receding:
         if self.horizon < self.window:
             raise PromptError(f"refine: horizon ({self.horizon}) must be at least the window ({self.window}): "
                               "candidates are scored on the steps they would execute and after")
+        if not np.isfinite(self.position_weight) or self.position_weight < 0:
+            raise PromptError(f"refine: position_weight must be >= 0, got {self.position_weight!r}")
+        for name, values in (("leads", self.leads), ("lookaheads", self.lookaheads)):
+            if any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1 for v in values):
+                raise PromptError(f"refine: {name} must be positive integers, got {values!r}")
         for name, least in (("candidates", 2), ("rounds", 1)):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
@@ -131,11 +143,15 @@ def _row(state: dict[str, np.ndarray], i: int) -> dict[str, np.ndarray]:
 
 def refine_track(policy: Policy, reference: np.ndarray, start: tuple[np.ndarray, np.ndarray], zs0: np.ndarray,
                  settings: Receding | None = None, num_threads: int | None = None,
-                 on_window: Callable[[int, int], None] | None = None) -> TrackRefined:
+                 on_window: Callable[[int, int], None] | None = None,
+                 alternatives: np.ndarray | None = None) -> TrackRefined:
     """Track `reference` (T, obs_dim) from `start` = (qpos, qvel) of its first frame, refining the B-given z's `zs0`
-    (T-1, d) window by window (see the module docstring). `on_window(done, total)` after every window."""
+    (T-1, d) window by window (see the module docstring). `alternatives` (S, T-1, d): other z sequences for the
+    clip (e.g. other lookahead lengths) whose window means are scored as starting centres beside z̄.
+    `on_window(done, total)` after every window."""
     from fbcpr.metrics import d_smpl
     from humanoid_env.model import CONTROL_HZ
+    from humanoid_env.observation import BODY_POS
 
     settings = settings or Receding()
     settings.check()
@@ -148,6 +164,13 @@ def refine_track(policy: Policy, reference: np.ndarray, start: tuple[np.ndarray,
     if zs0.shape != (steps, policy.z_dim):
         raise PromptError(f"refine: zs0 must be one z per step, ({steps}, {policy.z_dim}), got {zs0.shape}")
     qpos0, qvel0 = (np.asarray(x, dtype=np.float64)[None] for x in start)
+    given = np.empty((0, steps, policy.z_dim)) if alternatives is None else np.asarray(alternatives, np.float64)
+    if given.ndim != 3 or given.shape[1:] != (steps, policy.z_dim):
+        raise PromptError(f"refine: alternatives must be (S, {steps}, {policy.z_dim}), got {given.shape}")
+    leads = [zs0[np.minimum(np.arange(steps) + k, steps - 1)][None] for k in settings.leads]
+    alts = np.concatenate([given, *leads])  # (S', steps, d): every other z sequence whose window means start a search
+    w_pos = settings.position_weight
+    ref_pos = ref[:, BODY_POS].reshape(len(ref), -1, 3)
     window, horizon, k = settings.window, settings.horizon, settings.candidates
     n_windows = -(-steps // window)
     batches = _Batches(policy, steps + horizon + 1, num_threads)
@@ -173,6 +196,7 @@ def refine_track(policy: Policy, reference: np.ndarray, start: tuple[np.ndarray,
             z_b = zs0[t0:t0 + h]                                 # (h, d) B-given z's over the horizon
             z_bar = project(z_b[:e].mean(0)[None])[0]
             target = ref[t0 + 1:t0 + 1 + h]                      # frames the h steps should reach
+            target_pos = ref_pos[t0 + 1:t0 + 1 + h]
             best: dict[str, Any] = {"cost": np.inf}
 
             def score(cands: np.ndarray) -> np.ndarray:
@@ -189,7 +213,11 @@ def refine_track(policy: Policy, reference: np.ndarray, start: tuple[np.ndarray,
                 for j in range(h):
                     o, _, _, _, inf = env.step(np.asarray(policy.act(o, z[:, j], mean=True), dtype=np.float32))
                     alive &= ~inf["diverged"]
-                    total += np.where(alive, d_smpl(inf["final_obs"], target[j]), DIVERGED_COST)
+                    step_cost = d_smpl(inf["final_obs"], target[j])
+                    if w_pos:
+                        pos = inf["final_obs"][:, BODY_POS].reshape(n, -1, 3)
+                        step_cost = step_cost + w_pos * np.linalg.norm(pos - target_pos[j], axis=-1).mean(-1)
+                    total += np.where(alive, step_cost, DIVERGED_COST)
                     if j < e:
                         lived = np.where(~alive & (lived == e), j, lived)
                         for part, key in zip(trail, ("final_obs", "final_qpos", "final_qvel")):
@@ -205,11 +233,19 @@ def refine_track(policy: Policy, reference: np.ndarray, start: tuple[np.ndarray,
                     best["cost0"] = float(mean_cost[0])  # the first row scored: z̄, the B-given candidate
                 return -mean_cost
 
-            start_z = z_bar
-            if settings.warm and window_z:  # the last window's shift from its B-given centre, carried over
-                score(z_bar[None])  # the B-given candidate stays one, scored on its own
-                start_z = project((z_bar + window_z[-1] - window_z0[-1])[None])[0]
-                rollouts += 1
+            # z̄ is always scored (the B-given z's stay a candidate); the search starts from the last window's shift
+            # carried over (warm), or, given alternatives, from the cheapest of those and their window means
+            starts = [z_bar]
+            if settings.warm and window_z:
+                starts.append(project((z_bar + window_z[-1] - window_z0[-1])[None])[0])
+            if len(alts):
+                starts += list(project(alts[:, t0:t0 + e].mean(1)))
+                start_z = starts[int(np.argmax(score(np.stack(starts))))]
+            else:
+                start_z = starts[-1]
+                if len(starts) > 1:
+                    score(z_bar[None])
+            rollouts += len(starts) if len(alts) else len(starts) - 1
             refined = cross_entropy(score, start_z, settings.search(w))
             rollouts += k * settings.rounds + 1
             history += [{"window": float(w), **row} for row in refined.history]

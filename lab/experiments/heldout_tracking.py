@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tracking_split import clip_file, read_split  # the sibling script: the split's lists and clip files
@@ -43,9 +44,11 @@ def best_lag(agent: np.ndarray, ref: np.ndarray) -> tuple[int, float]:
     return k, scores[k]
 
 
-def diagnose(bfm: BFM, clip: Clip, seed: int) -> dict:
-    zs = bfm.prompt.track(clip)
-    ep = rollout(bfm, zs, seed=seed, start=(clip.qpos[0], clip.qvel[0]), label=f"track {clip.name}")
+def diagnose(agent: Any, clip: Clip, seed: int) -> dict:
+    """The measures above for any tracking agent (a `BFM`, an NPMP's `NPMPAgent`): z_t from its `track_z` of the
+    clip's observations."""
+    zs = agent.track_z(clip.obs)
+    ep = rollout(agent, zs, seed=seed, start=(clip.qpos[0], clip.qvel[0]), label=f"track {clip.name}")
     n = min(len(ep.obs), clip.n_frames)
     agent, ref, qpos = np.stack(ep.obs)[:n], clip.obs[:n], np.stack(ep.qpos)[:n]
     frozen = hold_first_pose(clip)[:n]
@@ -77,6 +80,13 @@ def diagnose(bfm: BFM, clip: Clip, seed: int) -> dict:
     return out
 
 
+def summarise(rows: list[dict]) -> dict:
+    """Means over clips of the MPJPE, EMD and their floors, the ratios of the means, and the count of falls."""
+    mean = {k: float(np.mean([r[k] for r in rows])) for k in ("mpjpe", "mpjpe_floor", "emd", "emd_floor")}
+    return {**mean, "mpjpe_ratio": mean["mpjpe"] / mean["mpjpe_floor"], "emd_ratio": mean["emd"] / mean["emd_floor"],
+            "falls": sum(r["fell_at_s"] is not None for r in rows), "clips": len(rows)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint")
@@ -102,11 +112,10 @@ def main() -> None:
               f"{r['mpjpe_ratio']:.2f} | {r['emd']:.2f} | {r['emd_floor']:.2f} | {r['emd_ratio']:.2f} | "
               f"{r['verdict']} | {r['mpjpe_while_up'] / r['floor_while_up']:.2f} | {r['lag_steps']} | "
               f"{r['drift_m']:.1f} / {r['clip_travel_m']:.1f} |")
-    mean = {k: float(np.mean([r[k] for r in rows])) for k in ("mpjpe", "mpjpe_floor", "emd", "emd_floor")}
-    print(f"mean: MPJPE {mean['mpjpe']:.3f} / floor {mean['mpjpe_floor']:.3f} = "
-          f"{mean['mpjpe'] / mean['mpjpe_floor']:.2f}x;"
-          f" EMD {mean['emd']:.2f} / floor {mean['emd_floor']:.2f} = {mean['emd'] / mean['emd_floor']:.2f}x; "
-          f"falls {sum(r['fell_at_s'] is not None for r in rows)} of {len(rows)}")
+    mean = summarise(rows)
+    print(f"mean: MPJPE {mean['mpjpe']:.3f} / floor {mean['mpjpe_floor']:.3f} = {mean['mpjpe_ratio']:.2f}x;"
+          f" EMD {mean['emd']:.2f} / floor {mean['emd_floor']:.2f} = {mean['emd_ratio']:.2f}x; "
+          f"falls {mean['falls']} of {len(rows)}")
 
 
 if __name__ == "__main__":

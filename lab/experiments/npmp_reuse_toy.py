@@ -66,14 +66,16 @@ def distil(teacher_path: str, out: Path, steps: int, seed: int, alpha: float) ->
     return out
 
 
-def run(cfg: Any, out: Path, task: str, seed: int) -> tuple[list[int], list[dict[str, float]], float]:
-    """Train one TD3 run, evaluating at step 0 and every cfg.train.eval_every env steps: (steps, rows, seconds)."""
+def run(cfg: Any, out: Path, task: str, seed: int, episodes: int = EPISODES,
+        horizon: int = HORIZON) -> tuple[list[int], list[dict[str, float]], float]:
+    """Train one TD3 run, evaluating at step 0 and every cfg.train.eval_every env steps (`episodes` episodes of
+    `horizon` steps): (steps, rows, seconds)."""
     bundle = make_env(cfg.env, 1, seed)
     steps: list[int] = []
     curve: list[dict[str, float]] = []
 
     def evaluate(agent: Any) -> dict[str, float]:
-        row = task_return(lambda obs: agent.model.act(obs, mean=True), bundle, task, EPISODES, HORIZON, seed=1000)
+        row = task_return(lambda obs: agent.model.act(obs, mean=True), bundle, task, episodes, horizon, seed=1000)
         steps.append(trainer.env_steps)
         curve.append(row)
         return row
@@ -86,14 +88,14 @@ def run(cfg: Any, out: Path, task: str, seed: int) -> tuple[list[int], list[dict
     return steps, curve, time.time() - start
 
 
-def random_reference(cfg: Any, task: str) -> dict[str, float]:
+def random_reference(cfg: Any, task: str, episodes: int = EPISODES, horizon: int = HORIZON) -> dict[str, float]:
     bundle = make_env(cfg.env, 1, 0)
     rng = np.random.default_rng(0)
     return task_return(lambda obs: rng.uniform(-1, 1, (len(obs), bundle.action_dim)).astype(np.float32), bundle,
-                       task, EPISODES, HORIZON, seed=1000)
+                       task, episodes, horizon, seed=1000)
 
 
-def plot_panel(ax: Any, curves: dict[str, Any], task: str) -> None:
+def plot_panel(ax: Any, curves: dict[str, Any], task: str, horizon: int = HORIZON) -> None:
     """Return vs env steps per agent: the mean over seeds, a min-max band, and the random policy dotted."""
     for name, c in curves.items():
         r = np.array([[row["return"] for row in seed_curve] for seed_curve in c["seeds"].values()])
@@ -101,7 +103,7 @@ def plot_panel(ax: Any, curves: dict[str, Any], task: str) -> None:
         ax.fill_between(c["steps"], r.min(0), r.max(0), alpha=0.2)
         ax.axhline(c["random"]["return"], ls=":", color=ax.lines[-1].get_color(), lw=1)
     ax.set_xlabel("env steps")
-    ax.set_ylabel(f"return ({task}, {HORIZON} steps)")
+    ax.set_ylabel(f"return ({task}, {horizon} steps)")
     ax.legend()
 
 

@@ -37,3 +37,23 @@ def test_takes_map_to_their_imported_clips_and_unique_names():
     assert clip_file("deepmimic/motions/humanoid3d_walk.txt", clips) == clips / "deepmimic/walk.npz"
     assert clip_name("cmu/bvh-daz/salsa/05.bvh") != clip_name("cmu/bvh-daz/indian/05.bvh")
     assert clip_name("cmu/expmap/test/walking_extra/walking_13.txt") == "expmap_test_walking_extra_walking_13"
+
+
+def test_an_npmp_is_diagnosed_through_its_encoder_and_the_means_summarised(tmp_path):
+    from fbcpr.apps.npmp.agent import NPMPAgent
+    from fbcpr.apps.npmp.checkpoint import save_npmp
+    from fbcpr.apps.npmp.config import npmp_config
+    from fbcpr.apps.npmp.model import NPMPModel
+    from motions.synthetic import arm_raise
+
+    clip = arm_raise(1.0)  # a clip that moves, so the first-pose floor is above zero
+    model = NPMPModel(npmp_config(preset="tiny"), clip.obs.shape[1], 69)  # the humanoid's 69 joint targets
+    agent = NPMPAgent(save_npmp(tmp_path / "npmp", model, {"expert": "pretrained", "method": "bc", "steps": 0}))
+    row = heldout_tracking.diagnose(agent, clip, seed=0)  # an untrained NPMP: not a BFM, its encoder's z's
+    assert row["clip"] == clip.name and row["mpjpe"] > 0 and row["emd"] > 0
+    assert np.isclose(row["mpjpe_ratio"], row["mpjpe"] / row["mpjpe_floor"], rtol=0.01)  # rows are rounded
+    other = {**row, "mpjpe": 3 * row["mpjpe"], "fell_at_s": 0.5}
+    mean = heldout_tracking.summarise([row, other])
+    assert mean["clips"] == 2 and mean["falls"] == (row["fell_at_s"] is not None) + 1
+    assert np.isclose(mean["mpjpe"], 2 * row["mpjpe"])
+    assert np.isclose(mean["mpjpe_ratio"], 2 * row["mpjpe"] / row["mpjpe_floor"])
