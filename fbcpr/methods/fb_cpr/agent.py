@@ -246,8 +246,8 @@ class FBCPRAgent:
         copies = self._bf16_copies()
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16), \
                 copies.swapped() if copies is not None else contextlib.nullcontext():
-            out = self._compute(*(inputs[k] for k in ("obs", "action", "next_obs", "z", "terminated", "expert",
-                                                      "expert_held")), self._draws(inputs["obs"], inputs["expert"]))
+            out = self._compute(inputs["obs"], inputs["action"], inputs["next_obs"], inputs["z"], inputs["terminated"],
+                                inputs["expert"], inputs["expert_held"], self._draws(inputs["obs"], inputs["expert"]))
         total = out.pop("_total")
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
@@ -277,22 +277,26 @@ class FBCPRAgent:
         draws from nu (`nu_draws`); noise_next, noise_pi: the actor's noise at s' and s; task: the anchor's reward
         prompt of each state."""
         g, dev, n = self.generator, self.device, obs.shape[0]
+        action_dim = self.model.cfg.action_dim
+        assert action_dim is not None  # FBCPRModel refuses a config without it
         draws = {}
         if self.energy is None:
             draws["mix"] = torch.rand(penalty_pairs(expert, obs), generator=g, device=dev)
         draws.update(self.nu_draws(n, obs, expert))  # z from windows' and B(s') latents: w and n of them
         draws["keep"] = torch.rand(n, generator=g, device=dev)
         for k in ("noise_next", "noise_pi"):
-            draws[k] = torch.randn(n, self.model.cfg.action_dim, generator=g, device=dev)  # type: ignore[arg-type]
+            draws[k] = torch.randn(n, action_dim, generator=g, device=dev)
         if self.anchor is not None and self.anchor.prompts is not None:
             draws["task"] = torch.randint(self.anchor.prompts.shape[0], (n,), generator=g, device=dev)
         return draws
 
     def _losses(self, obs: Tensor, action: Tensor, next_obs: Tensor, z_buf: Tensor, terminated: Tensor,
-                expert: Tensor, expert_held: Tensor | None, draws: dict[str, Tensor]) -> dict[str, Tensor]:
+                expert: Tensor, expert_held: Tensor | None = None,
+                draws: dict[str, Tensor] | None = None) -> dict[str, Tensor]:
         """expert_held: (w,) 1 for the windows the actor anchor holds, 0 for those it leaves free (all held when
-        None); draws: the update's random numbers (`_draws`)."""
+        None); draws: the update's random numbers (`_draws`; drawn here when None)."""
         cfg, model, tg = self.cfg, self.model, self.targets
+        draws = self._draws(obs, expert) if draws is None else draws
         w, L = expert.shape[:2]
         obs_n, next_n = model.normalize(obs), model.normalize(next_obs)
         expert_n = model.normalize(expert)
