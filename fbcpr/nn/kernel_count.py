@@ -174,7 +174,9 @@ def count_launches(fn: Callable[[], Any]) -> OpCount:
 
 def count_compiled_update(agent: Updatable, batch: dict[str, Tensor], windows: Tensor, warmup: int = 1) -> OpCount:
     """`count_update_ops` for an update that may run compiled code: the warm-up updates (where it compiles) run under
-    `kernel_markers`, the counted one under `count_launches`. The agent's first update must be the first warm-up."""
+    `kernel_markers`, the counted one under `count_launches`. Code compiled earlier in this process is dropped first
+    (`torch._dynamo.reset`): another agent of the same class would reuse it, without the markers."""
+    torch._dynamo.reset()
     with kernel_markers():
         for _ in range(warmup):
             agent.update(batch, windows)

@@ -52,6 +52,8 @@ class FBCPRAgent:
     """Model + target networks + Adam optimisers + the update of Algorithm 1 (an `fbcpr.core.protocols.OnlineAgent`)."""
 
     fields = ("obs", "action", "next_obs", "z", "terminated")
+    #: the model's modules that acting and rollout latents read (`act`, `rollout_z`): all a collector process needs
+    acting_modules = ("obs_normalizer", "actor", "backward_map")
 
     def __init__(self, model_cfg: ModelConfig, agent_cfg: AgentConfig, device: str | torch.device = "cpu",
                  seed: int = 0, task_reward: Callable[[str], TaskReward] | None = None,
