@@ -2,13 +2,13 @@
 
 Each of `train.collectors` processes steps its share of the run's envs (num_envs / collectors) with its own copy of
 the policy, and writes each vector step into a slot of a ring in shared memory; the trainer's process moves filled
-slots into the replay buffer (one slot of every collector per `step`, in one write, so an env's previous transition
-stays num_envs rows back) and hands the slots back; slot numbers travel both ways through one pipe per collector.
-A collector runs ahead of the learner by at most its ring (`ring_slots`: two rollout phases), then waits for a free
-slot: the trainer keeps the update-to-data ratio of the config exactly (it drains a phase, then runs its updates,
-while the collectors fill the next phase), and the policy the collectors act with is at most two phases older than
-the learner's. After every phase of updates `sync_policy` copies the weights that acting reads (`acting_weights`)
-and the motion priorities into shared memory, where each collector picks them up before its next step.
+slots into the replay buffer (one slot of every collector per `step`, so an env's previous transition stays
+num_envs rows back) and hands the slots back. A collector runs ahead of the learner by at most its ring
+(`ring_slots`: two rollout phases), then waits for a free slot: the trainer keeps the update-to-data ratio of the
+config exactly (it drains a phase, then runs its updates, while the collectors fill the next phase), and the
+policy the collectors act with is at most two phases older than the learner's. After every phase of updates
+`sync_policy` copies the weights that acting reads (`acting_weights`) and the motion priorities into shared memory,
+where each collector picks them up before its next step.
 
 Differences from the in-process collector (`fbcpr.train.collector`): a collector's rollout latents take their
 online states from its own last `ONLINE_ROWS` transitions (not the whole replay buffer), the envs' state is not
@@ -18,6 +18,7 @@ reproducible bit for bit (which weights a step acts with depends on timing).
 from __future__ import annotations
 
 import os
+import queue
 import signal
 from dataclasses import replace
 from typing import Any
@@ -92,9 +93,8 @@ class CollectorPool:
         self.version = self.ctx.Value("q", 0)
         self.lock = self.ctx.Lock()
         self.stop = self.ctx.Event()
-        # one pipe per collector carries slot numbers both ways: filled ones to the trainer, free ones back (a pipe
-        # end is read by one process only, so it needs no lock and no feeder thread, unlike a queue)
-        self.links = [self.ctx.Pipe() for _ in range(tc.collectors)]
+        self.free = [self.ctx.Queue() for _ in range(tc.collectors)]
+        self.filled = [self.ctx.Queue() for _ in range(tc.collectors)]
         self.procs: list[Any] = []
 
     def _start(self) -> None:
@@ -108,10 +108,10 @@ class CollectorPool:
         for i, ring in enumerate(self.rings):
             seed = int(np.random.SeedSequence((tc.seed, i, self.start_steps)).generate_state(1)[0])
             for slot in range(len(ring["policy"])):
-                self.links[i][0].send(slot)
+                self.free[i].put(slot)
             proc = self.ctx.Process(target=collect, name=f"fbcpr-collector-{i}", daemon=True,
                                     args=(cfg, self.per_worker, seed, threads, self.random_steps, ring, self.weights,
-                                          self.priorities, self.version, self.lock, self.links[i][1],
+                                          self.priorities, self.version, self.lock, self.free[i], self.filled[i],
                                           self.stop))
             proc.start()
             self.procs.append(proc)
@@ -121,35 +121,34 @@ class CollectorPool:
         return buffer_latents(self.cfg, self.agent, self.bundle.library, self.buffer, self.rng, n)
 
     def step(self) -> int:
-        """One filled slot of every collector into the replay buffer (waiting for each), in one write: the rows land
-        where one write per slot, collector by collector, put them. Returns num_envs."""
+        """One filled slot of every collector into the replay buffer (waiting for it); returns num_envs."""
         if not self.procs:
             self._start()
-        slots = [self._next_filled(i) for i in range(len(self.rings))]
-        block = {k: np.concatenate([ring[k][slot].numpy() for ring, slot in zip(self.rings, slots)])
-                 for k in self.buffer.specs}
-        rows = self.buffer.add(block)
-        if self.batches is not None:
-            self.batches.added(rows)
-        if hasattr(self.agent, "observe"):  # agents that track their own progress (NEAR's annealing)
-            self.agent.observe(torch.as_tensor(block["obs"]), torch.as_tensor(block["next_obs"]),
-                               torch.as_tensor(block["z"], device=self.device))
-        for (link, _), ring, slot in zip(self.links, self.rings, slots):
+        for i, ring in enumerate(self.rings):
+            slot = self._next_filled(i)
+            block = {k: ring[k][slot].numpy() for k in self.buffer.specs}
+            rows = self.buffer.add(block)
+            if self.batches is not None:
+                self.batches.added(rows)
+            if hasattr(self.agent, "observe"):  # agents that track their own progress (NEAR's annealing)
+                self.agent.observe(torch.as_tensor(block["obs"]), torch.as_tensor(block["next_obs"]),
+                                   torch.as_tensor(block["z"], device=self.device))
             if ring["policy"][slot]:
-                self.stats += action_stats(ring["action"][slot].numpy())
+                self.stats += action_stats(block["action"])
             self.episodes += int(ring["done"][slot].sum())
-            link.send(slot)
+            self.free[i].put(slot)
         self.random_steps = max(0, self.random_steps - 1)
         return self.cfg.train.num_envs
 
     def _next_filled(self, i: int) -> int:
-        link = self.links[i][0]
-        while not link.poll(POLL_S):
-            proc = self.procs[i]
-            if not proc.is_alive():
-                raise CollectorError(f"train.engine async: collector {i} exited with code {proc.exitcode} "
-                                     "(its error is printed above)")
-        return int(link.recv())
+        while True:
+            try:
+                return int(self.filled[i].get(timeout=POLL_S))
+            except queue.Empty:
+                proc = self.procs[i]
+                if not proc.is_alive():
+                    raise CollectorError(f"train.engine async: collector {i} exited with code {proc.exitcode} "
+                                         "(its error is printed above)") from None
 
     def sync_policy(self) -> None:
         """Copy the learner's weights and the motion priorities to the collectors (they take them before their
@@ -167,22 +166,22 @@ class CollectorPool:
         return out
 
     def close(self) -> None:
-        """Stop the workers (each ends within a poll once the stop is set) and close the pipes."""
+        """Stop the workers (each ends within a poll once the stop is set) and release the queues."""
         self.stop.set()
         for proc in self.procs:
             proc.join(timeout=10)
             if proc.is_alive():
                 proc.terminate()
                 proc.join()
-        for ends in self.links:
-            for end in ends:
-                end.close()
+        for q in (*self.free, *self.filled):
+            q.cancel_join_thread()
+            q.close()
         self.procs = []
 
 
 def collect(cfg: Config, n: int, seed: int, threads: int, random_steps: int, ring: dict[str, torch.Tensor],
-            weights: dict[str, torch.Tensor], priorities: torch.Tensor, version: Any, lock: Any, link: Any,
-            stop: Any) -> None:
+            weights: dict[str, torch.Tensor], priorities: torch.Tensor, version: Any, lock: Any, free: Any,
+            filled: Any, stop: Any) -> None:
     """A collector process: steps n envs, one ring slot per vector step, until `stop` is set or the trainer's
     process is gone. Stop signals are the trainer's to handle (a Ctrl-C or `timeout` reaches the whole process
     group): the trainer stops at its next safe point with a checkpoint, then sets `stop`."""
@@ -205,9 +204,10 @@ def collect(cfg: Config, n: int, seed: int, threads: int, random_steps: int, rin
     z_age = np.full(n, tc.z_update_every, dtype=np.int64)
     steps = 0
     while not stop.is_set() and os.getppid() == parent:
-        if not link.poll(0.2):  # a free slot, handed back by the trainer
+        try:
+            slot = free.get(timeout=0.2)
+        except queue.Empty:
             continue
-        slot = link.recv()
         if version.value != seen:
             with lock:
                 unexpected = agent.model.load_state_dict(weights, strict=False).unexpected_keys
@@ -232,7 +232,7 @@ def collect(cfg: Config, n: int, seed: int, threads: int, random_steps: int, rin
             ring[key][slot] = torch.as_tensor(np.asarray(value, dtype=np.float32))
         ring["done"][slot] = torch.as_tensor(done)
         ring["policy"][slot] = policy
-        link.send(slot)
+        filled.put(slot)
         online[(pos + np.arange(n)) % ONLINE_ROWS] = info["final_obs"]
         pos, held = (pos + n) % ONLINE_ROWS, min(held + n, ONLINE_ROWS)
         obs = next_obs
