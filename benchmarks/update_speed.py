@@ -228,7 +228,8 @@ def main() -> None:
                     "20 on GPU)")
     ap.add_argument("--gpu", action="store_true", help="also time on CUDA")
     ap.add_argument("--compile", action="store_true", help="also time torch.compile of the loss computation "
-                    "(agent.compile; after the eager rows: compiling takes minutes)")
+                    "(agent.compile; after the eager rows: compiling takes minutes), on the GPU with --gpu, else on "
+                    "the CPU")
     ap.add_argument("--bf16", action="store_true", help="also time the bf16-autocast switch (agent.bf16)")
     ap.add_argument("--near", action="store_true", help="also time the NEAR regulariser (agent.regulariser: near)")
     ap.add_argument("--graph", action="store_true", help="also check and time the update captured in a CUDA graph "
@@ -250,7 +251,9 @@ def main() -> None:
             ref = matmul_reference(flops, dev, 3)
             naive = time_straightforward(*make(preset, "cpu", False), reps) * 1e3 if dev == "cpu" else float("nan")
             eager = [(False, False, "discriminator")] + [(True, False, "discriminator")] * args.bf16
-            compiled = [(bf16, True, reg) for bf16, _, reg in eager] if args.compile else []
+            # compiled rows on the GPU with --gpu, else on the CPU
+            compiled = [(bf16, True, reg) for bf16, _, reg in eager] if args.compile and (dev != "cpu" or not args.gpu) \
+                else []
             variants = [(bf16, comp, reg, False) for bf16, comp, reg in
                         eager + [(False, False, "near")] * args.near + compiled]
             if args.graph and dev != "cpu":
