@@ -251,9 +251,8 @@ def main() -> None:
             ref = matmul_reference(flops, dev, 3)
             naive = time_straightforward(*make(preset, "cpu", False), reps) * 1e3 if dev == "cpu" else float("nan")
             eager = [(False, False, "discriminator")] + [(True, False, "discriminator")] * args.bf16
-            # compiled rows on the GPU with --gpu, else on the CPU
-            compiled = [(bf16, True, reg) for bf16, _, reg in eager] if args.compile and (dev != "cpu" or not args.gpu) \
-                else []
+            on_this_device = dev != "cpu" or not args.gpu  # compiled rows on the GPU with --gpu, else on the CPU
+            compiled = [(bf16, True, reg) for bf16, _, reg in eager] if args.compile and on_this_device else []
             variants = [(bf16, comp, reg, False) for bf16, comp, reg in
                         eager + [(False, False, "near")] * args.near + compiled]
             if args.graph and dev != "cpu":
