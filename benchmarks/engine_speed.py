@@ -13,6 +13,9 @@ The last line:
     kernels_per_update_sync=M
 
 ratio_vs_sync is the engine's samples/s over the sync loop's (the ratio of updates to env steps is the same in both).
+On the CPU the engine's learner is compiled (`agent.compile`; `--no-compile` runs it eagerly), and its first phase of
+updates, where it compiles, is among those left out; the sync loop's is today's eager learner. kernels_per_update counts
+the engine's learner, kernels_per_update_sync the sync loop's, both on the CPU (`fbcpr.nn.kernel_count`).
 
 `--scaling`: a stand-in learner that does no work (updates_per_rollout 0) and collectors on one MuJoCo thread each;
 env steps/s of 1 and of 2 collectors (the same envs in all, split between them), the ratio 2 collectors / 1
@@ -32,7 +35,7 @@ import torch
 
 from fbcpr.core.config import config_from_dict
 from fbcpr.core.schema import Config
-from fbcpr.nn.kernel_count import count_update_kernels
+from fbcpr.nn.kernel_count import count_compiled_update, count_update_kernels
 from fbcpr.train.trainer import Trainer
 
 #: batch per network size: the shipped CPU configs' and the paper's
@@ -45,7 +48,8 @@ def engine_config(args: argparse.Namespace, engine: str, collectors: int, update
     cuda = args.device == "cuda"
     return config_from_dict({
         "model": {"preset": args.preset},
-        "agent": {"batch_size": BATCH[args.preset], "seq_length": 8, "cuda_graph": cuda, "bf16": False},
+        "agent": {"batch_size": BATCH[args.preset], "seq_length": 8, "cuda_graph": cuda, "bf16": False,
+                  "compile": args.compile and engine == "async"},
         "env": {"name": "humanoid", "motions": "synthetic", "max_episode_steps": 300, "action_mapping": "rest",
                 "fall_prob": 0.2, "stand_prob": 0.3},
         "train": {"device": args.device, "engine": engine, "collectors": collectors, "num_envs": args.envs,
@@ -81,19 +85,24 @@ def measure(cfg: Config, out: Path, skip: int) -> dict[str, float]:
             "updates_per_s": (last["updates"] - first["updates"]) / dt, "seconds": dt}
 
 
-def kernels_per_update(preset: str) -> int:
-    """Kernels one update of the learner launches at `preset`'s size and batch: the aten operators that launch work
-    (views and metadata apart) dispatched by one eager update on the CPU, forward, backward and optimisers, after one
-    uncounted update (`fbcpr.nn.kernel_count`). Both engines run this same learner."""
+def kernels_per_update(preset: str, compiled: bool) -> int:
+    """Kernels one update of the learner launches at `preset`'s size and batch, counted on the CPU after one uncounted
+    update (`fbcpr.nn.kernel_count`): eager, the aten operators that launch work (views and metadata apart) of its
+    forward, backward and optimisers; compiled (`agent.compile`), the kernels inductor generated for the CPU plus the
+    operators called outside them."""
     from update_speed import make  # the update benchmark's agent and random humanoid batch at this size
 
-    agent, batch, windows = make(preset, "cpu", False)
-    return count_update_kernels(agent, batch, windows)
+    agent, batch, windows = make(preset, "cpu", compiled)
+    return count_compiled_update(agent, batch, windows).kernels if compiled else count_update_kernels(agent, batch,
+                                                                                                         windows)
 
 
 def compare(args: argparse.Namespace, tmp: Path) -> None:
     warmup, steps = args.warmup, args.steps
     updates = args.rollout // 10  # the paper's ratio: 1 update per 10 env steps
+    # counted first: the engine's learner then reuses the code compiled here (with the counter's profiler markers)
+    sync_kernels = kernels_per_update(args.preset, False)
+    kernels = kernels_per_update(args.preset, True) if args.compile else sync_kernels
     skip = warmup + args.rollout
     out: dict[str, dict[str, float]] = {}
     for engine, collectors in (("sync", 1), ("async", args.collectors)):
@@ -104,10 +113,9 @@ def compare(args: argparse.Namespace, tmp: Path) -> None:
               f"({r['seconds']:.1f} s measured)", flush=True)
     batch = BATCH[args.preset]
     a, s = out["async"], out["sync"]
-    kernels = kernels_per_update(args.preset)  # the same learner in both engines
     print(f"RESULT engine device={args.device} samples_per_s={a['updates_per_s'] * batch:.0f} "
           f"env_steps_per_s={a['env_steps_per_s']:.0f} ratio_vs_sync={a['updates_per_s'] / s['updates_per_s']:.2f} "
-          f"kernels_per_update={kernels} kernels_per_update_sync={kernels}")
+          f"kernels_per_update={kernels} kernels_per_update_sync={sync_kernels}")
 
 
 def scaling(args: argparse.Namespace, tmp: Path) -> None:
@@ -147,10 +155,15 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--rollout", type=int, default=None, help="env steps per rollout phase, updates a tenth "
                    "(default: 10 vector steps of the envs)")
     p.add_argument("--threads", type=int, default=1, help="torch threads of the learner")
+    p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=None,
+                   help="the engine's learner compiled (agent.compile; default: on the CPU; a GPU graphs it instead)")
     p.add_argument("--env-threads", type=int, default=0, help="MuJoCo threads of the sync loop (0: all cores)")
     args: Any = p.parse_args(argv)
     cores = os.cpu_count() or 1
     args.preset = args.preset or ("paper-S" if args.device == "cuda" else "small")
+    args.compile = args.device == "cpu" if args.compile is None else args.compile
+    if args.compile and args.device == "cuda":
+        raise SystemExit("--compile: on cuda the engine's learner runs in a CUDA graph (agent.cuda_graph) instead")
     args.collectors = args.collectors or (2 if args.scaling else max(1, cores - 1))
     args.envs = args.envs or (8 * args.collectors if args.device == "cuda" else 16)
     args.rollout = args.rollout or 10 * args.envs

@@ -8,8 +8,9 @@ update), i.e. what the update would cost if all its math ran at dense float32 GE
 straightforward implementation of the same losses (one network at a time, no shared passes). `--bf16` adds
 rows for the optional bf16 autocast switch (`agent.bf16`; float32 master weights and optimiser); `--near` rows for
 the NEAR regulariser (`agent.regulariser: near`, its default 3 x 512 energy) in the discriminator's place. The last
-column counts the kernels of one eager update: the non-view aten operators of its forward and backward passes and its
-optimiser steps (`fbcpr.nn.kernel_count`).
+column counts the kernels of one update on the CPU: the non-view aten operators of its forward and backward passes and
+its optimiser steps (`fbcpr.nn.kernel_count`); for a `--compile` row, the kernels inductor generated for the CPU plus
+the operators called outside them (`count_compiled_update`).
 `--graph` adds GPU rows for the update captured in a CUDA graph (`agent.cuda_graph`), and first checks, per size,
 that the graphed update trains as the eager one does: twins from the same seed, fed the same batches, with
 exploration actions drawn between updates, are compared after every update.
@@ -26,7 +27,7 @@ from fbcpr.core.config import config_from_dict
 from fbcpr.methods.fb_cpr import losses
 from fbcpr.methods.fb_cpr.agent import FBCPRAgent
 from fbcpr.nn.cuda_graph import make_capturable
-from fbcpr.nn.kernel_count import count_update_kernels
+from fbcpr.nn.kernel_count import count_compiled_update, count_update_kernels
 from fbcpr.nn.networks import project_sphere
 
 SIZES = {"tiny": 256, "small": 256, "paper-S": 1024, "paper-M": 1024}
@@ -226,8 +227,9 @@ def main() -> None:
     ap.add_argument("--reps", type=int, help="timed updates per row (default: 20 tiny, 10 small, 3 larger on CPU; "
                     "20 on GPU)")
     ap.add_argument("--gpu", action="store_true", help="also time on CUDA")
-    ap.add_argument("--compile", action="store_true", help="also time torch.compile of the loss computation (GPU rows, "
-                    "after the eager ones: compiling takes minutes)")
+    ap.add_argument("--compile", action="store_true", help="also time torch.compile of the loss computation "
+                    "(agent.compile; after the eager rows: compiling takes minutes), on the GPU with --gpu, else on "
+                    "the CPU")
     ap.add_argument("--bf16", action="store_true", help="also time the bf16-autocast switch (agent.bf16)")
     ap.add_argument("--near", action="store_true", help="also time the NEAR regulariser (agent.regulariser: near)")
     ap.add_argument("--graph", action="store_true", help="also check and time the update captured in a CUDA graph "
@@ -249,15 +251,19 @@ def main() -> None:
             ref = matmul_reference(flops, dev, 3)
             naive = time_straightforward(*make(preset, "cpu", False), reps) * 1e3 if dev == "cpu" else float("nan")
             eager = [(False, False, "discriminator")] + [(True, False, "discriminator")] * args.bf16
-            compiled = [(bf16, True, reg) for bf16, _, reg in eager] if args.compile and dev != "cpu" else []
+            on_this_device = dev != "cpu" or not args.gpu  # compiled rows on the GPU with --gpu, else on the CPU
+            compiled = [(bf16, True, reg) for bf16, _, reg in eager] if args.compile and on_this_device else []
             variants = [(bf16, comp, reg, False) for bf16, comp, reg in
                         eager + [(False, False, "near")] * args.near + compiled]
             if args.graph and dev != "cpu":
                 variants += [(bf16, False, "discriminator", True) for bf16, _, _ in eager]
             for bf16, compile_, regulariser, graph in variants:
+                # counted on the CPU: a graph replays the eager update's kernels; a compiled update is counted from
+                # the profiler, with the kernels inductor generates for the CPU (before the timed agent compiles, which
+                # then reuses the same code)
+                kernels = str(count_compiled_update(*make(preset, "cpu", True, bf16, regulariser)).kernels if compile_
+                              else count_update_kernels(*make(preset, "cpu", False, bf16, regulariser)))
                 agent, batch, windows = make(preset, dev, compile_, bf16, regulariser, graph)
-                # the eager update's (a compiled one runs eagerly under the counter; a graph replays the eager one's)
-                kernels = "-" if compile_ else str(count_update_kernels(*make(preset, dev, False, bf16, regulariser)))
                 t = time_update(agent, batch, windows, dev, reps)
                 name = (dev + ("+bf16" if bf16 else "") + ("+near" if regulariser == "near" else "")
                         + ("+comp" if compile_ else "") + ("+graph" if graph else ""))

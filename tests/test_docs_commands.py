@@ -39,6 +39,8 @@ SCRIPT_SKIP = {
                                   "at one episode of 60 steps)",
     "lab/experiments/compare_targets.py": "reads the tables of targets.py (not run here); its reading and rules "
                                           "are tested in lab/tests/test_compare_targets.py",
+    "lab/experiments/learner_compiled.py": "compiles the learner (half a minute to minutes on a cold inductor cache); "
+                                           "its counter is tested in tests/test_kernel_count.py",
     "lab/experiments/funnel_rise.py": "stabilises every planned rise with LQR gains along it, minutes a rise even "
                                       "for the short rises planned above; tested in lab/tests/test_funnel_rise.py",
 }
@@ -52,7 +54,7 @@ SCRIPT_SHORT = {
     "benchmarks/bf16_agreement.py": ["--steps", "16", "--batches", "1"],
     "benchmarks/batch_draw.py": ["--sizes", "tiny", "--rows", "2000", "--updates", "2", "--reps", "1"],
     "benchmarks/engine_speed.py": ["--preset", "tiny", "--envs", "4", "--collectors", "1", "--warmup", "160",
-                                   "--steps", "320", "--rollout", "40"],
+                                   "--steps", "320", "--rollout", "40", "--no-compile"],
     "benchmarks/distributed_scaling.py": ["--ranks", "1", "--collect-steps", "512", "--train-steps", "512"],
     "lab/experiments/upright_time.py": ["--episodes", "1", "--steps", "5"],
     "lab/experiments/noise_copy.py": ["--reward-samples", "200"],

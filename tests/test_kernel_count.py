@@ -6,7 +6,8 @@ import torch
 
 from fbcpr.core.config import config_from_dict
 from fbcpr.methods.fb_cpr.agent import FBCPRAgent
-from fbcpr.nn.kernel_count import count_ops, count_update_kernels, count_update_ops
+from fbcpr.nn.kernel_count import (INDUCTOR_KERNEL, count_launches, count_ops, count_update_kernels,
+                                   count_update_ops)
 from fbcpr.nn.networks import project_sphere
 
 
@@ -52,3 +53,29 @@ def test_update_count_covers_forward_backward_and_step_and_is_stable() -> None:
     assert count.kernels > count.ops["aten.baddbmm.default"] > 0
     again = count_update_kernels(*tiny_agent(seed=1))
     assert again == count.kernels  # the same graph of operators whatever the seed
+
+
+def test_the_profiler_count_equals_the_dispatch_count_on_an_eager_update() -> None:
+    agent, batch, windows = tiny_agent()
+    agent.update(batch, windows)
+    by_dispatch = count_ops(lambda: agent.update(batch, windows))
+    by_profiler = count_launches(lambda: agent.update(batch, windows))
+    assert by_profiler.kernels == by_dispatch.kernels
+    assert by_profiler.ops["aten::_fused_adam_"] == by_dispatch.ops["aten._fused_adam_.default"] > 0
+
+
+def test_an_inductor_kernel_counts_once_by_its_marker() -> None:
+    """What inductor's C++ kernels look like to the profiler under `kernel_markers` (compiling one here would take
+    half a minute on a cold cache: `benchmarks/update_speed.py --compile` counts a real compiled update)."""
+    x, w = torch.randn(8, 16), torch.randn(16, 16)
+
+    def wrapper() -> torch.Tensor:  # a compiled graph's wrapper: an external matmul, then one fused kernel
+        y = torch.mm(x, w)
+        with torch.profiler.record_function("graph_0_cpp_fused_add_mul_relu_tanh_0"):
+            return torch.tanh(y * 2.0 + 1.0).relu()  # inside the kernel: not operators of their own
+
+    count = count_launches(wrapper)
+    assert count.kernels == 2
+    assert count.ops["aten::mm"] == count.ops["graph_0_cpp_fused_add_mul_relu_tanh_0"] == 1
+    assert INDUCTOR_KERNEL.match("graph_0_cpp_fused_add_mul_relu_tanh_0")
+    assert not INDUCTOR_KERNEL.match("aten::mm")

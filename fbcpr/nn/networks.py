@@ -187,11 +187,15 @@ class Discriminator(nn.Module):
         return torch.sigmoid(self.logits(obs, z))
 
 
-def noisy_action(mean: Tensor, std: float, clip: float, generator: torch.Generator | None = None) -> Tensor:
+def noisy_action(mean: Tensor, std: float, clip: float, generator: torch.Generator | None = None,
+                 noise: Tensor | None = None) -> Tensor:
     """mean + N(0, std^2) noise clipped to [-clip, clip], clamped to [-1, 1] with a straight-through gradient.
 
-    TD3's exploration and target-policy smoothing, used by every actor (FB-CPR's pi(s, z), TD3's pi(s))."""
-    noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+    TD3's exploration and target-policy smoothing, used by every actor (FB-CPR's pi(s, z), TD3's pi(s)). `noise`:
+    standard normal draws of mean's shape made beforehand (a compiled update traces no generator), else drawn here."""
+    if noise is None:
+        noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+    noise = noise.to(mean.dtype)
     a = mean + (noise * std).clamp(-clip, clip)
     return a + (a.clamp(-1.0, 1.0) - a).detach()
 

@@ -7,8 +7,8 @@ num_envs rows back) and hands the slots back. A collector runs ahead of the lear
 (`ring_slots`: two rollout phases), then waits for a free slot: the trainer keeps the update-to-data ratio of the
 config exactly (it drains a phase, then runs its updates, while the collectors fill the next phase), and the
 policy the collectors act with is at most two phases older than the learner's. After every phase of updates
-`sync_policy` copies the model's weights (and the motion priorities) into shared memory, where each collector
-picks them up before its next step.
+`sync_policy` copies the weights that acting reads (`acting_weights`) and the motion priorities into shared memory,
+where each collector picks them up before its next step.
 
 Differences from the in-process collector (`fbcpr.train.collector`): a collector's rollout latents take their
 online states from its own last `ONLINE_ROWS` transitions (not the whole replay buffer), the envs' state is not
@@ -55,6 +55,14 @@ def ring_slots(cfg: Config) -> int:
     return max(2, 2 * phase_steps(cfg.train, 1))
 
 
+def acting_weights(agent: OnlineAgent) -> dict[str, torch.Tensor]:
+    """The model's tensors that acting reads: those of the agent's `acting_modules` (FB-CPR's normaliser, actor and
+    B: the collectors copy them after every phase of updates, so the critics' weights would be copies for nothing),
+    else all of them."""
+    modules = getattr(agent, "acting_modules", None)
+    return {k: v for k, v in agent.model.state_dict().items() if modules is None or k.split(".")[0] in modules}
+
+
 def collector_threads(cfg: Config, cores: int) -> int:
     """MuJoCo threads of each collector: train.env_threads, else the cores shared by the collectors and the learner."""
     return cfg.train.env_threads or max(1, cores // (cfg.train.collectors + 1))
@@ -79,8 +87,7 @@ class CollectorPool:
                       | {"done": torch.zeros((slots, n), dtype=torch.bool).share_memory_(),
                          "policy": torch.zeros(slots, dtype=torch.bool).share_memory_()}
                       for _ in range(tc.collectors)]
-        self.weights = {k: v.detach().to("cpu", copy=True).share_memory_()
-                        for k, v in agent.model.state_dict().items()}
+        self.weights = {k: v.detach().to("cpu", copy=True).share_memory_() for k, v in acting_weights(agent).items()}
         self.priorities = torch.as_tensor(np.asarray(bundle.library.priorities, dtype=np.float64)).share_memory_()
         self.ctx = mp.get_context("spawn")  # fresh interpreters: no forked torch or MuJoCo thread pools
         self.version = self.ctx.Value("q", 0)
@@ -147,7 +154,7 @@ class CollectorPool:
         """Copy the learner's weights and the motion priorities to the collectors (they take them before their
         next step)."""
         with self.lock:
-            for k, v in self.agent.model.state_dict().items():
+            for k, v in acting_weights(self.agent).items():
                 self.weights[k].copy_(v)
             self.priorities.copy_(torch.as_tensor(np.asarray(self.bundle.library.priorities, dtype=np.float64)))
             self.version.value += 1
@@ -203,7 +210,8 @@ def collect(cfg: Config, n: int, seed: int, threads: int, random_steps: int, rin
             continue
         if version.value != seen:
             with lock:
-                agent.model.load_state_dict(weights)
+                unexpected = agent.model.load_state_dict(weights, strict=False).unexpected_keys
+                assert not unexpected, unexpected  # the weights of the modules acting reads, and only those
                 bundle.library.priorities = priorities.numpy().copy()
                 seen = version.value
         stale = np.flatnonzero(z_age >= tc.z_update_every)

@@ -30,7 +30,7 @@ from fbcpr.core.schema import Config, ModelConfig
 from fbcpr.methods.fb_cpr import losses
 from fbcpr.methods.fb_cpr.anchor import ActorAnchor, free_clips, reward_prompts
 from fbcpr.methods.fb_cpr.config import AgentConfig
-from fbcpr.methods.fb_cpr.imitation import discriminator_terms, encode_windows
+from fbcpr.methods.fb_cpr.imitation import discriminator_terms, encode_windows, penalty_pairs
 from fbcpr.methods.fb_cpr.model import FBCPRModel
 from fbcpr.nn import distributed
 from fbcpr.nn.bf16_weights import BF16Weights
@@ -52,6 +52,8 @@ class FBCPRAgent:
     """Model + target networks + Adam optimisers + the update of Algorithm 1 (an `fbcpr.core.protocols.OnlineAgent`)."""
 
     fields = ("obs", "action", "next_obs", "z", "terminated")
+    #: the model's modules that acting and rollout latents read (`act`, `rollout_z`): all a collector process needs
+    acting_modules = ("obs_normalizer", "actor", "backward_map")
 
     def __init__(self, model_cfg: ModelConfig, agent_cfg: AgentConfig, device: str | torch.device = "cpu",
                  seed: int = 0, task_reward: Callable[[str], TaskReward] | None = None,
@@ -149,26 +151,43 @@ class FBCPRAgent:
         """n draws from nu: ER_FB of expert windows (z_expert), B of online states (z_online), uniform sphere.
 
         A component whose source is missing (no online states yet, no demonstrations) gives way to uniform."""
+        return self.mix_nu(self.nu_draws(n, online_b, expert_z), online_b, expert_z)
+
+    def nu_draws(self, n: int, online_b: Tensor | None, expert_z: Tensor | None) -> dict[str, Tensor]:
+        """The random numbers of n draws from nu (`mix_nu`), from the agent's generator: a component, a uniform
+        latent, and an index into each source given (only its size is read)."""
         g, dev = self.generator, self.device
+        draws = {"u": torch.rand(n, generator=g, device=dev),
+                 "uniform": torch.randn(n, self.model.cfg.z_dim, generator=g, device=dev)}
+        if expert_z is not None:
+            draws["expert_idx"] = torch.randint(expert_z.shape[0], (n,), generator=g, device=dev)
+        if online_b is not None:
+            draws["online_idx"] = torch.randint(online_b.shape[0], (n,), generator=g, device=dev)
+        return draws
+
+    def mix_nu(self, draws: dict[str, Tensor], online_b: Tensor | None, expert_z: Tensor | None) -> Tensor:
+        """Draws from nu made of `nu_draws`' random numbers."""
         p_expert = self.cfg.z_expert if expert_z is not None else 0.0
         p_online = self.cfg.z_online if online_b is not None else 0.0
-        u = torch.rand(n, generator=g, device=dev)
-        z = project_sphere(torch.randn(n, self.model.cfg.z_dim, generator=g, device=dev))
+        u = draws["u"]
+        z = project_sphere(draws["uniform"])
         if expert_z is not None:
-            idx = torch.randint(expert_z.shape[0], (n,), generator=g, device=dev)
-            z = torch.where((u < p_expert)[:, None], expert_z[idx], z)
+            z = torch.where((u < p_expert)[:, None], expert_z[draws["expert_idx"]], z)
         if online_b is not None:
-            idx = torch.randint(online_b.shape[0], (n,), generator=g, device=dev)
-            z = torch.where(((u >= p_expert) & (u < p_expert + p_online))[:, None], online_b[idx], z)
+            z = torch.where(((u >= p_expert) & (u < p_expert + p_online))[:, None], online_b[draws["online_idx"]], z)
         return z
 
-    def relabel(self, z: Tensor, online_b: Tensor, expert_z: Tensor | None) -> Tensor:
+    def relabel(self, z: Tensor, online_b: Tensor, expert_z: Tensor | None,
+                draws: dict[str, Tensor] | None = None) -> Tensor:
         """Replace each z with probability relabel_prob by a fresh draw from nu (lines 17-18).
 
-        online_b are B values of online states (here B(s') of the batch, already computed)."""
-        fresh = self.sample_z(z.shape[0], online_b, expert_z)
-        keep = torch.rand(z.shape[0], generator=self.generator, device=self.device) >= self.cfg.relabel_prob
-        return torch.where(keep[:, None], z, fresh)
+        online_b are B values of online states (here B(s') of the batch, already computed); draws: the update's
+        random numbers (`_draws`), else drawn here."""
+        if draws is None:
+            draws = self.nu_draws(z.shape[0], online_b, expert_z)
+            draws["keep"] = torch.rand(z.shape[0], generator=self.generator, device=self.device)
+        keep = draws["keep"] >= self.cfg.relabel_prob
+        return torch.where(keep[:, None], z, self.mix_nu(draws, online_b, expert_z))
 
     def encode_windows(self, windows_n: Tensor) -> Tensor:
         """ER_FB of normalized windows (w, L, obs) -> (w, d) (`fbcpr.methods.fb_cpr.imitation.encode_windows`)."""
@@ -229,8 +248,8 @@ class FBCPRAgent:
         copies = self._bf16_copies()
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16), \
                 copies.swapped() if copies is not None else contextlib.nullcontext():
-            out = self._compute(*(inputs[k] for k in ("obs", "action", "next_obs", "z", "terminated", "expert",
-                                                      "expert_held")))
+            out = self._compute(inputs["obs"], inputs["action"], inputs["next_obs"], inputs["z"], inputs["terminated"],
+                                inputs["expert"], inputs["expert_held"], self._draws(inputs["obs"], inputs["expert"]))
         total = out.pop("_total")
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
@@ -253,11 +272,33 @@ class FBCPRAgent:
         self._bf16.refresh()
         return self._bf16
 
+    def _draws(self, obs: Tensor, expert: Tensor) -> dict[str, Tensor]:
+        """The update's random numbers, drawn from the agent's generator in the order the loss computation uses
+        them, before it runs: a compiled `_losses` then traces no generator, which would split it at every draw.
+        mix: the gradient penalty's interpolation weights; u, uniform, expert_idx, online_idx, keep: the relabeling's
+        draws from nu (`nu_draws`); noise_next, noise_pi: the actor's noise at s' and s; task: the anchor's reward
+        prompt of each state."""
+        g, dev, n = self.generator, self.device, obs.shape[0]
+        action_dim = self.model.cfg.action_dim
+        assert action_dim is not None  # FBCPRModel refuses a config without it
+        draws = {}
+        if self.energy is None:
+            draws["mix"] = torch.rand(penalty_pairs(expert, obs), generator=g, device=dev)
+        draws.update(self.nu_draws(n, obs, expert))  # z from windows' and B(s') latents: w and n of them
+        draws["keep"] = torch.rand(n, generator=g, device=dev)
+        for k in ("noise_next", "noise_pi"):
+            draws[k] = torch.randn(n, action_dim, generator=g, device=dev)
+        if self.anchor is not None and self.anchor.prompts is not None:
+            draws["task"] = torch.randint(self.anchor.prompts.shape[0], (n,), generator=g, device=dev)
+        return draws
+
     def _losses(self, obs: Tensor, action: Tensor, next_obs: Tensor, z_buf: Tensor, terminated: Tensor,
-                expert: Tensor, expert_held: Tensor | None = None) -> dict[str, Tensor]:
+                expert: Tensor, expert_held: Tensor | None = None,
+                draws: dict[str, Tensor] | None = None) -> dict[str, Tensor]:
         """expert_held: (w,) 1 for the windows the actor anchor holds, 0 for those it leaves free (all held when
-        None)."""
+        None); draws: the update's random numbers (`_draws`; drawn here when None)."""
         cfg, model, tg = self.cfg, self.model, self.targets
+        draws = self._draws(obs, expert) if draws is None else draws
         w, L = expert.shape[:2]
         obs_n, next_n = model.normalize(obs), model.normalize(next_obs)
         expert_n = model.normalize(expert)
@@ -267,7 +308,7 @@ class FBCPRAgent:
         # or the NEAR regulariser: DSM on expert (s, s' - s | ER_FB(window)) and the anchor of its reward
         z_exp = self.encode_windows(expert_n)
         if self.energy is None:
-            logits, disc, gp = discriminator_terms(model.discriminator, expert_n, z_exp, obs_n, z_buf, self.generator,
+            logits, disc, gp = discriminator_terms(model.discriminator, expert_n, z_exp, obs_n, z_buf, draws["mix"],
                                                    self._gradient_penalty)
             regulariser = disc + cfg.grad_penalty * gp
             reg_metrics = {"disc_loss": disc, "grad_penalty": gp, "disc_expert": torch.sigmoid(logits[: w * L]).mean(),
@@ -279,10 +320,10 @@ class FBCPRAgent:
         # B(s') once: FB loss, ortho loss, Sigma_B, online-goal relabeling
         B_next = model.backward_map(next_n)
         B_det = B_next.detach()
-        z = self.relabel(z_buf, B_det, z_exp)
+        z = self.relabel(z_buf, B_det, z_exp, draws)
 
         with torch.no_grad():
-            a_next = model.actor_sample(next_n, z, self.generator)
+            a_next = model.actor_sample(next_n, z, noise=draws["noise_next"])
             F_next = tg["forward_map"](next_n, a_next, z)                       # (m, n, d)
             target_M = losses.pessimistic(torch.einsum("mid,jd->mij", F_next, tg["backward_map"](next_n)),
                                           cfg.fb_pessimism)
@@ -306,7 +347,7 @@ class FBCPRAgent:
         critic = losses.td_loss(Q_sa, reward, target_Q, discount)
 
         # actor: F and Q with frozen weights at a ~ pi(s, z), reusing their (s, z)-only parts
-        a_pi = model.actor_sample(obs_n, z, self.generator)
+        a_pi = model.actor_sample(obs_n, z, noise=draws["noise_pi"])
         detached = lambda pre: tuple(t.detach() for t in pre)  # noqa: E731
         Fz_pi = (model.forward_map(obs_n, a_pi, z, detach_params=True, pre=detached(pre_F)) * z).sum(-1)
         Q_pi = model.critic(obs_n, a_pi, z, detach_params=True, pre=detached(pre_Q))[..., 0]
@@ -317,9 +358,7 @@ class FBCPRAgent:
                                   None if expert_held is None else expert_held.repeat_interleave(L, 0))
             anchor_metrics = {"anchor_gap": gap}
             if self.anchor.prompts is not None:  # and on the batch's states, each under a held reward prompt
-                task = torch.randint(self.anchor.prompts.shape[0], (obs.shape[0],), generator=self.generator,
-                                     device=obs.device)
-                reward_gap = self.anchor.gap(model, obs, obs_n, self.anchor.prompts[task])
+                reward_gap = self.anchor.gap(model, obs, obs_n, self.anchor.prompts[draws["task"]])
                 anchor_metrics["anchor_gap_rewards"] = reward_gap
                 gap = gap + reward_gap
         actor = losses.actor_loss(Fz_pi, Q_pi, cfg.actor_reg_coef, cfg.actor_pessimism, a_pi, cfg.action_penalty,

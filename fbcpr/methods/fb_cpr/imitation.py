@@ -26,18 +26,23 @@ def encode_windows(model: FBCPRModel, windows_n: Tensor) -> Tensor:
     return project_sphere(model.backward_map(windows_n.reshape(w * L, o)).view(w, L, -1).mean(1))
 
 
+def penalty_pairs(expert_n: Tensor, obs_n: Tensor) -> int:
+    """How many (expert, online) pairs the gradient penalty interpolates: one weight each is drawn for them."""
+    return min(expert_n.shape[0] * expert_n.shape[1], obs_n.shape[0])
+
+
 def discriminator_terms(disc: Discriminator, expert_n: Tensor, z_exp: Tensor, obs_n: Tensor, z: Tensor,
-                        generator: torch.Generator, penalty: Callable[..., Tensor] = gradient_penalty
+                        mix: Tensor, penalty: Callable[..., Tensor] = gradient_penalty
                         ) -> tuple[Tensor, Tensor, Tensor]:
     """(logits, cross-entropy, gradient penalty): expert (s, ER_FB) of windows (w, L, obs) with their latents z_exp
-    (w, d) vs online (s, z), in one forward; the first w * L logits are the expert's."""
+    (w, d) vs online (s, z), in one forward; the first w * L logits are the expert's. mix: the penalty's
+    `penalty_pairs` interpolation weights, uniform in [0, 1]."""
     w, L, o = expert_n.shape
     z_exp_states = z_exp.repeat_interleave(L, 0)
     s_exp = expert_n.reshape(w * L, o)
     logits = disc.logits(torch.cat([s_exp, obs_n]), torch.cat([z_exp_states, z]))
     loss = discriminator_loss(logits[: w * L], logits[w * L:])
-    k = min(w * L, obs_n.shape[0])
-    mix = torch.rand(k, generator=generator, device=obs_n.device)
+    k = mix.shape[0]
     return logits, loss, penalty(disc, s_exp[:k], z_exp_states[:k], obs_n[:k], z[:k], mix)
 
 
@@ -55,8 +60,9 @@ class DiscriminatorReward:
         model, dev = self.model, self.model.device
         expert_n = model.normalize(expert_windows.to(dev, torch.float32))
         obs_n, z = model.normalize(batch["obs"].to(dev, torch.float32)), batch["z"].to(dev, torch.float32)
+        mix = torch.rand(penalty_pairs(expert_n, obs_n), generator=self.generator, device=dev)
         logits, loss, gp = discriminator_terms(model.discriminator, expert_n, encode_windows(model, expert_n), obs_n,
-                                               z, self.generator)
+                                               z, mix)
         self.optimizer.zero_grad(set_to_none=True)
         (loss + self.grad_penalty * gp).backward()
         self.optimizer.step()

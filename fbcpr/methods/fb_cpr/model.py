@@ -52,9 +52,12 @@ class FBCPRModel(nn.Module):
         """tanh mean of the Gaussian policy at normalized observations."""
         return torch.tanh(self.actor(obs_n, None, z)[0])
 
-    def actor_sample(self, obs_n: Tensor, z: Tensor, generator: torch.Generator | None = None) -> Tensor:
-        """mean + clipped N(0, std^2) noise, clamped to [-1, 1] with a straight-through gradient."""
-        return noisy_action(self.actor_mean(obs_n, z), self.cfg.actor_std, self.cfg.actor_noise_clip, generator)
+    def actor_sample(self, obs_n: Tensor, z: Tensor, generator: torch.Generator | None = None,
+                     noise: Tensor | None = None) -> Tensor:
+        """mean + clipped N(0, std^2) noise (`noise`: standard normal draws made beforehand, else drawn from
+        `generator`), clamped to [-1, 1] with a straight-through gradient."""
+        return noisy_action(self.actor_mean(obs_n, z), self.cfg.actor_std, self.cfg.actor_noise_clip, generator,
+                            noise)
 
     # ------------------------------------------------------------------ public inference API
     @torch.no_grad()
