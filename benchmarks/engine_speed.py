@@ -19,8 +19,9 @@ the engine's learner, kernels_per_update_sync the sync loop's, both on the CPU (
 
 `--scaling`: a stand-in learner that does no work (updates_per_rollout 0) and collectors on one MuJoCo thread each;
 env steps/s of 1 and of 2 collectors (the same envs in all, split between them), the ratio 2 collectors / 1
-collector, and as references the sync loop's on one MuJoCo thread and on two (MuJoCo's own threaded stepping of
-the same envs, the alternative to processes).
+collector, one collector stepping the same envs on 2 MuJoCo threads (`train.env_threads: 2`: the cores used by
+threads, not processes; collector_threads_2_vs_1 against 1 collector on one thread), and as references the sync
+loop's on one MuJoCo thread and on two.
 """
 from __future__ import annotations
 
@@ -124,15 +125,16 @@ def scaling(args: argparse.Namespace, tmp: Path) -> None:
     found: dict[str, float] = {}
     # (engine, name, collectors, MuJoCo threads: of the sync loop, or of each collector)
     runs = [("sync", "sync (1 thread)", 1, 1), ("sync", "sync (2 threads)", 1, 2), ("async", "1 collector", 1, 1),
-            ("async", "2 collectors", 2, 1)]
+            ("async", "2 collectors", 2, 1), ("async", "1 collector, 2 threads", 1, 2)]
     for engine, name, collectors, threads in runs:
         cfg = engine_config(args, engine, collectors, 0, 0, steps)
         cfg.train.env_threads = threads
         found[name] = r = measure(cfg, tmp / name.replace(" ", "_"), args.rollout * 4)
-        print(f"{name:16s} envs={args.envs} {r['env_steps_per_s']:,.0f} env steps/s ({r['seconds']:.1f} s measured)",
+        print(f"{name:22s} envs={args.envs} {r['env_steps_per_s']:,.0f} env steps/s ({r['seconds']:.1f} s measured)",
               flush=True)
-    ratio = found["2 collectors"]["env_steps_per_s"] / found["1 collector"]["env_steps_per_s"]
-    print(f"RESULT collection device=cpu collectors_2_vs_1={ratio:.2f} "
+    one = found["1 collector"]["env_steps_per_s"]
+    ratio, threaded = found["2 collectors"]["env_steps_per_s"] / one, found["1 collector, 2 threads"]["env_steps_per_s"]
+    print(f"RESULT collection device=cpu collectors_2_vs_1={ratio:.2f} collector_threads_2_vs_1={threaded / one:.2f} "
           f"one_collector_env_steps_per_s={found['1 collector']['env_steps_per_s']:.0f} "
           f"two_collectors_env_steps_per_s={found['2 collectors']['env_steps_per_s']:.0f} "
           f"sync_one_thread_env_steps_per_s={found['sync (1 thread)']['env_steps_per_s']:.0f} "
