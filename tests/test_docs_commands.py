@@ -65,7 +65,7 @@ SCRIPT_SHORT = {
     "lab/experiments/skill_planner.py": ["--seeds", "0", "--steps", "40", "--threads", "1", "--planner", "samples=4",
                                          "horizon=4"],
     "lab/experiments/imitation_toy.py": ["--steps", "200"],
-    "lab/experiments/imitation_humanoid.py": ["--env-steps", "64", "--seeds", "0"],
+    "lab/experiments/imitation_humanoid.py": ["--env-steps", "64", "--seeds", "0", "--sheet-steps", "15"],
     "lab/experiments/npmp_latent_opt.py": ["--steps", "2"],
     "lab/experiments/npmp_toy.py": ["--steps", "5"],
     "lab/experiments/npmp_reuse_toy.py": ["--seeds", "0", "--steps", "64", "--eval-every", "32", "--distill-steps",

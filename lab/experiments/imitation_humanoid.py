@@ -3,6 +3,7 @@
     python lab/experiments/imitation_humanoid.py --reward amp|near|virl|random [--clip walk] [--env-steps 23040]
                                             [--seeds 0,1] [--minutes 15] [--config PATH] [--out runs/imitation]
     python lab/experiments/imitation_humanoid.py --run RUN_DIR [--clip walk] [--every 1] [--sheet PNG] [--plot PNG]
+                                            [--sheet-steps 150]
 
 For each seed, one at a time: builds the run config as `fbcpr imitate CLIP --reward R` does (the shipped
 `<reward>-walk` config, or --config, with env.motions = the clip; `--clip` is a name in data/clips/deepmimic or
@@ -60,7 +61,7 @@ def score(agent: Any, bundle: EnvBundle) -> dict[str, float]:
         env.close()
     paths = np.stack(traj, 1)                                                   # (STARTS, HORIZON + 1, obs_dim)
     scores = [imitation_scores(p, clip.obs) for p in paths]
-    upright = seconds_upright(paths[:, :-1, 0].T)   # first HORIZON frames: a fall seen only in the last one counts as none
+    upright = seconds_upright(paths[:, :-1, 0].T)  # first HORIZON frames: a fall seen only in the last counts as none
     return {"dtw": float(np.mean([s["dtw"] for s in scores])), "sparc": float(np.mean([s["sparc"] for s in scores])),
             "sparc_expert": scores[0]["sparc_expert"], "upright_s": float(upright.mean())}
 
@@ -96,7 +97,8 @@ def run_seed(reward: str, clip: Path, seed: int, env_steps: int, minutes: float,
     result.update({"env_steps": summary["env_steps"], "updates": summary["updates"],
                    "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0})
     result.update(score(make_agent(summary["checkpoint"]), trainer.bundle))
-    result.update({f"random_{k}": v for k, v in score(RandomAgent(seed), trainer.bundle).items() if k != "sparc_expert"})
+    floor = score(RandomAgent(seed), trainer.bundle)
+    result.update({f"random_{k}": v for k, v in floor.items() if k != "sparc_expert"})
     return result
 
 
@@ -110,7 +112,8 @@ class _One:
         return np.asarray(self.agent.act(obs[None], np.zeros((1, 0), np.float32), mean=True))[0]
 
 
-def score_run(run: Path, clip: Path, every: int, sheet: Path | None, plot: Path | None) -> list[str]:
+def score_run(run: Path, clip: Path, every: int, sheet: Path | None, plot: Path | None,
+              sheet_steps: int = HORIZON) -> list[str]:
     """RESULT lines of every `every`-th checkpoint of `run` (and its last), floors once; the curve and sheet."""
     found = list_checkpoints(run / "checkpoints")
     if not found:
@@ -136,7 +139,7 @@ def score_run(run: Path, clip: Path, every: int, sheet: Path | None, plot: Path 
     if plot is not None:
         _plot(rows, plot)
     if sheet is not None:
-        _sheet(picked[-1], clip, sheet)
+        _sheet(picked[-1], clip, sheet, sheet_steps)
     return [f"{r['env_steps']}: dtw {r['dtw']:.3f} ({r['dtw_vs_random']:.2f}x random), upright {r['upright_s']:.1f} s"
             for r in rows]
 
@@ -154,6 +157,7 @@ def _plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax.plot(steps, [r[key] for r in rows], "o-", label=rows[0]["method"])
         for floor, style in (("random", "--"), ("zero", ":")):
             ax.axhline(rows[0][f"{floor}_{key}"], color="gray", linestyle=style, label=f"{floor} action")
+        ax.xaxis.set_major_formatter(lambda v, _: f"{v / 1e3:.0f}k")
         ax.set_xlabel("env steps"), ax.set_ylabel(label)
     axes[0].legend()
     fig.suptitle(f"{rows[0]['method']} imitating {rows[0]['clip']}, seed {rows[0]['seed']}")
@@ -163,7 +167,7 @@ def _plot(rows: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
-def _sheet(ckpt: Path, clip_file: Path, path: Path) -> None:
+def _sheet(ckpt: Path, clip_file: Path, path: Path, steps: int) -> None:
     """The last checkpoint from the clip's first frame, body beside clip, next to the zero action's rollout."""
     from contact_sheet import contact_sheet  # a sibling lab script: its folder is first on sys.path
 
@@ -171,12 +175,12 @@ def _sheet(ckpt: Path, clip_file: Path, path: Path) -> None:
     from motions.clip import load_clip
 
     clip = load_clip(clip_file)
-    zs, start = np.zeros((HORIZON, 0), np.float32), (clip.qpos[0], clip.qvel[0])
+    zs, start = np.zeros((steps, 0), np.float32), (clip.qpos[0], clip.qvel[0])
     rows = [(f"{label} (left) beside {clip_file.stem} (right)",
              rollout(_One(agent), zs, start=start, video=True, reference=clip, label=label), True)
             for label, agent in ((ckpt.name, make_agent(str(ckpt))), ("zero action", ZeroAgent()))]
     path.parent.mkdir(parents=True, exist_ok=True)
-    contact_sheet(rows, 15).save(path)
+    contact_sheet(rows, max(1, min(15, steps // 10))).save(path)
 
 
 def main() -> None:
@@ -186,6 +190,7 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=1, help="with --run: every N-th checkpoint (and the last)")
     ap.add_argument("--sheet", type=Path, default=None, help="with --run: contact sheet PNG of the last checkpoint")
     ap.add_argument("--plot", type=Path, default=None, help="with --run: PNG of the curve against env steps")
+    ap.add_argument("--sheet-steps", type=int, default=HORIZON, help="with --sheet: steps of its rollouts")
     ap.add_argument("--clip", default="walk", help="clip name in data/clips/deepmimic, or a .npz path")
     ap.add_argument("--env-steps", type=int, default=23040, help="env-step budget per seed")
     ap.add_argument("--seeds", default="0", help="comma-separated training seeds, run one after another")
@@ -197,7 +202,7 @@ def main() -> None:
     if (args.run is None) == (args.reward is None):
         raise SystemExit("give --reward (train and score) or --run (score a run's checkpoints)")
     if args.run is not None:
-        print("\n".join(score_run(args.run, clip, args.every, args.sheet, args.plot)))
+        print("\n".join(score_run(args.run, clip, args.every, args.sheet, args.plot, args.sheet_steps)))
         return
     lines = []
     for seed in (int(s) for s in args.seeds.split(",")):
