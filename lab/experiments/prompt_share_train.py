@@ -62,14 +62,21 @@ class PromptShareAgent(FBCPRAgent):
             raise ConfigError("prompt_share_train: the --init-from checkpoint has no reward-inference sample")
         self.prompt_z = reward_prompts(self.model, sample, self.prompt_rewards).to(self.device)
 
-    def sample_z(self, n: int, online_b: Tensor | None, expert_z: Tensor | None) -> Tensor:
-        z = super().sample_z(n, online_b, expert_z)
-        if self.prompt_z is None or self.share == 0.0:
+    def nu_draws(self, n: int, online_b: Tensor | None, expert_z: Tensor | None) -> dict[str, Tensor]:
+        """nu's random numbers, and with them which draws take a prompt and whose: `sample_z` and `relabel`
+        (which the update feeds pre-drawn numbers) both go through here and `mix_nu`."""
+        draws = super().nu_draws(n, online_b, expert_z)
+        if self.prompt_z is not None and self.share > 0.0:
+            g, dev = self.generator, self.device
+            draws["prompt_u"] = torch.rand(n, generator=g, device=dev)
+            draws["prompt_idx"] = torch.randint(self.prompt_z.shape[0], (n,), generator=g, device=dev)
+        return draws
+
+    def mix_nu(self, draws: dict[str, Tensor], online_b: Tensor | None, expert_z: Tensor | None) -> Tensor:
+        z = super().mix_nu(draws, online_b, expert_z)
+        if self.prompt_z is None or "prompt_idx" not in draws:
             return z
-        g, dev = self.generator, self.device
-        pick = torch.rand(n, generator=g, device=dev) < self.share
-        idx = torch.randint(self.prompt_z.shape[0], (n,), generator=g, device=dev)
-        return torch.where(pick[:, None], self.prompt_z[idx], z)
+        return torch.where((draws["prompt_u"] < self.share)[:, None], self.prompt_z[draws["prompt_idx"]], z)
 
 
 def install(tasks: list[str], share: float) -> None:
