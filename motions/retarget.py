@@ -392,11 +392,18 @@ class Retargeter:
             for b in range(1, self.model.nbody)
         }
 
+    def _orient(self, rots: dict) -> None:
+        """Constrain orientations only where the source gives them. A body with no source orientation (the head and
+        feet of BVH and ASF/AMC takes) is left to its position target and the posture task's pull to rest: an
+        identity target there would ask it to face the world's +x and hold its twist joints at their stops."""
+        for body, _, cost in _TASKS:
+            self.tasks[body].set_orientation_cost(cost if body in rots else 0.0)
+
     def _solve(self, targets: dict, rots: dict, t: int, iterations: int) -> None:
         """A few IK steps from the current configuration towards frame t's targets."""
         eye = np.eye(3)
         for body, task in self.tasks.items():
-            rot = rots[body][t] if body in rots else eye
+            rot = rots[body][t] if body in rots else eye  # identity: the cost is 0 (`_orient`)
             pos = targets[body][t] if body in targets else np.zeros(3)  # zeros: orientation-only task
             task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(rot), pos))
         self._iterate([*self.tasks.values(), self.posture], iterations)
@@ -445,6 +452,7 @@ class Retargeter:
         start = time.perf_counter()
         pos, rot, _ = _resample(src, self.fps)
         targets, rots, scale = build_targets(pos, rot, self.rest)
+        self._orient(rots)
         n = targets["Pelvis"].shape[0]
         q = self.model.qpos0.copy()
         q[:3] = targets["Pelvis"][0]

@@ -151,6 +151,21 @@ def test_cmu_walks_in_both_formats_retarget_into_walks():
     assert (src.positions["head"][:, 2] > src.positions["l_ankle"][:, 2] + 1.0).all()
 
 
+@needs_cmu
+def test_twists_the_source_does_not_give_stay_near_rest():
+    """ASF/AMC and BVH give no head or foot orientations: their twist joints follow the posture task to rest
+    instead of an identity target that faced the world's +x and held them at their stops for whole takes."""
+    from humanoid_env.model import JOINT_NAMES
+
+    twists = [JOINT_NAMES.index(n) for n in ("Head_z", "Neck_z", "L_Ankle_z", "R_Ankle_z")]
+    for path in (CMU / "asfamc" / "02_02.amc", CMU / "bvh" / "007_03.bvh"):
+        clip, report = import_file(path, use_cache=False)
+        mean = np.degrees(np.abs(clip.qpos[:, 7:][:, twists]).mean(axis=0))
+        assert (mean < 15.0).all(), (path.name, mean)
+        assert all(report.at_limits.get(n, 0) < 0.1 * report.frames for n in ("Head_z", "Neck_z")), report.at_limits
+        assert report.keypoint_error < 0.01, report.keypoint_error
+
+
 def test_a_rest_frame_before_the_take_is_left_out():
     """Some exporters put the rig's T-pose at the origin before the take: the pelvis jumps far to frame 1."""
     from motions.importers.bvh import leading_rest_frames

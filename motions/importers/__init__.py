@@ -23,7 +23,7 @@ from motions.retarget import Retargeter, RetargetReport
 __all__ = ["FORMATS", "UnknownFormatError", "cache_dir", "detect_format", "import_file"]
 
 #: Bump when a converter's output changes, so cached conversions are not reused.
-CONVERTER_VERSION = "4"
+CONVERTER_VERSION = "5"
 
 
 def cache_dir() -> Path:
