@@ -13,7 +13,7 @@ from fbcpr.core.checkpoint import CheckpointError
 from fbcpr.core.errors import ConfigError
 from fbcpr.core.registry import get_method
 from fbcpr.core.schema import Config
-from fbcpr.train.buffer import ReplayBuffer, transition_specs
+from fbcpr.train.buffer import ReplayBuffer
 from fbcpr.train.device_batches import DeviceBatches
 
 #: Bytes per model parameter during training: weights, gradients, two Adam moments and a target copy.
@@ -27,15 +27,10 @@ def memory_bytes(device: torch.device) -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device, copies: int = 1) -> bool:
-    """Estimate the model's and the replay buffer's memory before allocating either, and raise ConfigError
-    naming the key to lower when they cannot fit, instead of an allocation failing (or the OOM killer striking)
-    minutes later; CheckpointError when the disk at `out` cannot hold one checkpoint. `copies`: processes of this
-    run on this machine (torchrun's ranks), each holding a model and a replay shard. Returns whether the buffer is
-    memory-mapped (over train.buffer_memmap_mb)."""
-    tc = cfg.train
-    obs_dim, action_dim = cfg.model.obs_dim, cfg.model.action_dim
-    assert obs_dim is not None and action_dim is not None, "check_memory: set model.obs_dim and action_dim first"
+def check_model_memory(cfg: Config, device: torch.device, copies: int = 1) -> tuple[int, int]:
+    """(parameters, bytes to train them) of the configured model, counted on the meta device before anything is
+    allocated; ConfigError naming the keys to lower when they cannot fit. `copies`: processes of this run on this
+    machine (torchrun's ranks), each holding a model."""
     with torch.device("meta"):  # shapes only: no memory is allocated
         model = get_method(cfg.algorithm).model(cfg.model)
     params = sum(p.numel() for p in model.parameters())
@@ -46,7 +41,23 @@ def check_memory(cfg: Config, nq: int, nv: int, out: Path, device: torch.device,
         raise ConfigError(f"model: {params / 1e6:,.0f}M parameters need about {need / 2**30:,.1f} GiB to train, "
                           f"more than the {have / 2**30:,.1f} GiB of {device.type} memory; lower model.hidden_dim, "
                           "model.hidden_layers or model.preset")
-    specs = transition_specs(obs_dim, action_dim, getattr(model, "z_dim", 0), nq, nv)
+    return params, need
+
+
+def check_memory(cfg: Config, specs: dict[str, tuple[int, ...]], out: Path, device: torch.device,
+                 copies: int = 1) -> bool:
+    """The model's and the replay buffer's memory, the buffer of exactly the fields it will hold (`specs`, a
+    video reward's frames included), checked before the buffer is allocated: ConfigError naming the key to lower
+    when they cannot fit, instead of an allocation failing (or the OOM killer striking) minutes later;
+    CheckpointError when the disk at `out` cannot hold one checkpoint. `copies`: processes of this run on this
+    machine (torchrun's ranks), each holding a model and a replay shard. Returns whether the buffer is
+    memory-mapped (over train.buffer_memmap_mb)."""
+    tc = cfg.train
+    obs_dim = cfg.model.obs_dim
+    assert obs_dim is not None, "check_memory: set model.obs_dim first"
+    params, need = check_model_memory(cfg, device, copies)
+    have = memory_bytes(device)
+    nq, nv = specs["qpos"][0], specs["qvel"][0]
     buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) * copies
     memmap = buffer > tc.buffer_memmap_mb * 2**20
     folder = next(p for p in (out, *out.absolute().parents) if p.exists())

@@ -68,7 +68,7 @@ from fbcpr.train.collector import Collector
 from fbcpr.train.device_batches import DeviceBatches
 from fbcpr.train.learner import Learner
 from fbcpr.train.reporting import progress_columns, summary_writer
-from fbcpr.train.resources import check_memory
+from fbcpr.train.resources import check_memory, check_model_memory
 from fbcpr.train.schedule import check_world_size, phase_steps, rescheduled
 from fbcpr.train.workers import STOP_SIGNALS, CollectorPool
 
@@ -138,7 +138,7 @@ class Trainer:
         self.cfg = cfg = replace(cfg, model=replace(cfg.model, obs_dim=b.obs_dim, action_dim=b.action_dim))
         if batch_config(cfg.agent).batch_size > tc.buffer_capacity:
             raise ConfigError("train.buffer_capacity: must be >= agent.batch_size")
-        self._memmap_buffer = check_memory(cfg, b.nq, b.nv, self.out, self.device, copies=r.local_world_size)
+        check_model_memory(cfg, self.device, copies=r.local_world_size)  # before the agent allocates it
 
         random.seed(seed)
         np.random.seed(seed)
@@ -157,9 +157,6 @@ class Trainer:
         self.warm_started = init_from is not None and not resume
         if self.warm_started and init_from is not None:
             self._warm_start(init_from)
-        self.out.mkdir(parents=True, exist_ok=True)
-        if r.is_main and (self.out / "checkpoints").is_dir():
-            remove_stale_temporaries(self.out / "checkpoints")
         specs = transition_specs(b.obs_dim, b.action_dim, self.agent.z_dim, b.nq, b.nv)
         frame_size = getattr(self.agent, "frame_size", 0)  # a video reward: each s' rendered once, kept as a frame
         if frame_size:
@@ -167,6 +164,10 @@ class Trainer:
                 raise ConfigError("train.engine: async workers do not render the frames this agent's video reward "
                                   "reads; use sync")
             specs[FRAME] = (frame_size, frame_size)
+        self._memmap_buffer = check_memory(cfg, specs, self.out, self.device, copies=r.local_world_size)
+        self.out.mkdir(parents=True, exist_ok=True)
+        if r.is_main and (self.out / "checkpoints").is_dir():
+            remove_stale_temporaries(self.out / "checkpoints")
         mmap = self.out / ("buffer_mmap" if r.is_main else f"buffer_mmap_rank{r.rank}")
         self.buffer = ReplayBuffer(tc.buffer_capacity, specs, mmap if self._memmap_buffer else None, stride=tc.num_envs)
         self.batches: DeviceBatches | None = None  # train.device_buffer: update batches drawn on the device
