@@ -23,7 +23,7 @@ import torch
 from fbcpr.eval.runner import hold_first_pose
 from fbcpr.inference.bfm import BFM
 from fbcpr.inference.prompt import load_motion
-from fbcpr.inference.track_refine import Receding, refine_track
+from fbcpr.inference.track_refine import Receding
 from fbcpr.metrics import emd, mpjpe
 from humanoid_env.env import FALLEN_HEIGHT
 from humanoid_env.vector import VectorHumanoidEnv
@@ -45,35 +45,12 @@ def zero_shot(bfm: BFM, clip, zs: np.ndarray) -> tuple[np.ndarray, np.ndarray, b
     return np.stack(obs), np.stack(qpos), False
 
 
-#: Twist dofs the CMU imports hold at their stops (lab/log.md 71): a retargeting artefact the body does not copy
-PINNED = ("Head_z", "Neck_z", "L_Ankle_z", "R_Ankle_z")
-
-
-def unpinned(clip):
-    """The clip with the PINNED twists set to zero, observations recomputed: a diagnostic reference only."""
-    from humanoid_env.model import JOINT_NAMES
-    from motions.clip import from_qpos
-
-    qpos = clip.qpos.copy()
-    qpos[:, [7 + JOINT_NAMES.index(n) for n in PINNED]] = 0.0
-    return from_qpos(qpos, name=clip.name)
-
-
 def stays_up(qpos: np.ndarray, clip, diverged: bool) -> tuple[bool, int | None]:
     """Up to the clip's end, and the first frame the body lay where the reference did not."""
     n = len(qpos)
     fell = (qpos[:, 2] < FALLEN_HEIGHT) & (clip.qpos[:n, 2] >= FALLEN_HEIGHT)
     first = int(np.argmax(fell)) if fell.any() else None
     return (not diverged and first is None and n == clip.n_frames), first
-
-
-def unpinned_scores(clip, z_obs: np.ndarray, r_obs: np.ndarray) -> dict[str, float]:
-    """MPJPE and EMD of zero-shot, refined and the floor against the unpinned reference (diagnostic)."""
-    ref = unpinned(clip)
-    floor = hold_first_pose(ref)
-    return {"emd_floor_u": emd(floor, ref.obs), "emd_zero_u": emd(z_obs, ref.obs), "emd_refined_u": emd(r_obs, ref.obs),
-            "mpjpe_floor_u": mpjpe(floor, ref.obs), "mpjpe_zero_u": mpjpe(z_obs, ref.obs[:len(z_obs)]),
-            "mpjpe_refined_u": mpjpe(r_obs, ref.obs[:len(r_obs)])}
 
 
 def main() -> None:
@@ -90,8 +67,6 @@ def main() -> None:
     ap.add_argument("--position-weight", type=float, default=0.0)
     ap.add_argument("--leads", type=int, nargs="*", default=[])
     ap.add_argument("--lookaheads", type=int, nargs="*", default=[])
-    ap.add_argument("--plan-unpinned", action="store_true",
-                    help="plan against the unpinned reference (scored against the clip as it is)")
     ap.add_argument("--cold", action="store_true", help="no warm start from the last window's shift")
     ap.add_argument("--threads", type=int, default=1, help="MuJoCo threads of the batched envs")
     ap.add_argument("--max-frames", type=int, default=0, help="cut each clip to this many frames (0: whole)")
@@ -113,12 +88,7 @@ def main() -> None:
         z_obs, z_qpos, z_div = zero_shot(bfm, clip, zs)
         load0 = os.getloadavg()[0]
         t = time.perf_counter()
-        if args.plan_unpinned:  # from the clip's own first state, z's and planning cost from the unpinned clip
-            plan = unpinned(clip)
-            res = refine_track(bfm, plan.obs, (clip.qpos[0], clip.qvel[0]), bfm.prompt.track(plan), settings,
-                               num_threads=args.threads)
-        else:
-            res = bfm.prompt.track_refined(clip, settings, num_threads=args.threads)
+        res = bfm.prompt.track_refined(clip, settings, num_threads=args.threads)
         wall = time.perf_counter() - t
         floor = hold_first_pose(clip)
         row = {"clip": clip.name, "frames": clip.n_frames,
@@ -129,7 +99,6 @@ def main() -> None:
                                                                                    res.diverged_at is not None)[0],
                "fell_zero": stays_up(z_qpos, clip, z_div)[1], "fell_refined": stays_up(res.qpos, clip,
                                                                                        res.diverged_at is not None)[1],
-               **unpinned_scores(clip, z_obs, res.obs),
                "plan_cost0": float(res.plan_cost0.mean()), "plan_cost": float(res.plan_cost.mean()),
                "s_per_s": res.cost, "cpu_s_per_s": res.cpu_cost, "cpu": res.cpu_seconds, "wall": wall, "load": [load0, os.getloadavg()[0]]}
         rows.append(row)
@@ -139,8 +108,6 @@ def main() -> None:
               f"| {row['s_per_s']:.1f} s/s wall, {row['cpu_s_per_s']:.1f} cpu, load {row['load'][0]:.1f}-{row['load'][1]:.1f}", flush=True)
     keys = ("mpjpe_zero", "mpjpe_refined", "emd_zero", "emd_refined")
     ratio = {k: float(np.mean([r[k] / r[k.split("_")[0] + "_floor"] for r in rows])) for k in keys}
-    ratio.update({k + "_u": float(np.mean([r[k + "_u"] / r[k.split("_")[0] + "_floor_u"] for r in rows]))
-                  for k in keys})
     summary = {"settings": vars(settings), "model": args.model, "ratio_to_floor_mean": ratio,
                "up_zero": float(np.mean([r["up_zero"] for r in rows])),
                "up_refined": float(np.mean([r["up_refined"] for r in rows])),
