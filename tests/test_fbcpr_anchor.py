@@ -213,6 +213,34 @@ def test_held_reward_prompts_are_the_reward_prompts_of_the_loaded_checkpoint(tmp
         agent.warm_started(lambda: None)
 
 
+def test_a_warm_start_holds_the_loaded_models_stored_prompt_where_it_has_one(tmp_path):
+    """The shipped model's stored prompts are refined at export, so they are not what its B infers: the anchor must
+    hold the z the user's prompt plays, or a held family is lost under its own prompt."""
+    from fbcpr import BFM
+    from fbcpr.inference.reward_prompts import RewardPrompts, weights_digest
+    from conftest import tiny_humanoid_checkpoint
+
+    original = tiny_humanoid_checkpoint(tmp_path, "loaded", seed=3)
+    bfm = BFM.load(original)
+    stored = bfm.project_z(np.random.default_rng(0).normal(size=bfm.z_dim))  # far from what B infers
+    bfm.reward_prompts = RewardPrompts({"move-ego-0-0": stored}, 32, weights_digest(bfm.model))
+    path = bfm.save(tmp_path / "with-prompts")
+    names = ["move-ego-0-0", "raisearms-l-l"]
+    cfg = config_from_dict({"model": {"preset": "tiny"},
+                            "agent": {"seq_length": 4, "batch_size": 8, "freeze_backward": True, "anchor_actor": 1.0,
+                                      "anchor_rewards": names},
+                            "env": {"name": "humanoid", "max_episode_steps": 30},
+                            "train": {"num_envs": 2, "buffer_capacity": 1000, "priority_every": 0,
+                                      "reward_buffer_size": 0, "warmup_steps": 20}})
+    tr = Trainer(cfg, tmp_path / "run", init_from=path, progress=False)
+    held = tr.agent.anchor.prompts.numpy()
+    np.testing.assert_allclose(held[0], stored, atol=1e-5)                             # the stored prompt
+    np.testing.assert_allclose(held[1], BFM.load(path).prompt.reward(names[1]), atol=1e-4)   # inferred: none stored
+    inferred = BFM.load(original).prompt.reward(names[0])                   # what the B of the weights infers
+    assert not np.allclose(held[0], inferred, atol=1e-2)
+    assert any("1 of 2 held at the loaded model's stored prompts (move-ego-0-0)" in n for n in tr.agent.notices)
+
+
 def test_held_reward_options_refuse_what_they_cannot_hold(tmp_path):
     for agent, match in (({"anchor_rewards": ["ring"], "anchor_actor": 1.0}, "anchor_rewards: .*freeze_backward"),
                          ({"anchor_rewards": ["ring"], "freeze_backward": True}, "anchor_rewards: .*anchor_actor"),

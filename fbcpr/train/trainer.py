@@ -32,7 +32,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -625,6 +625,8 @@ class Trainer:
         targets (= the networks) and normaliser; fresh optimisers and an empty replay buffer, which the warm-up
         fills with the loaded policy's own rollouts instead of random actions."""
         from fbcpr.inference.bfm import resolve_checkpoint
+        from fbcpr.inference.reward_prompts import load_reward_prompts
+        from fbcpr.methods.fb_cpr.model import FBCPRModel
 
         ckpt = load_checkpoint(resolve_checkpoint(src), self.device)
         if ckpt.algorithm != self.cfg.algorithm:
@@ -642,7 +644,10 @@ class Trainer:
             if self._kept_sample is None:
                 raise ConfigError(f"train.keep_reward_sample: the --init-from checkpoint {ckpt.path} has no "
                                   "reward-inference sample to keep")
-        self.agent.warm_started(sample)
+        stored = ckpt.reward_prompts() if getattr(self.agent, "held_rewards", None) else None  # FB-CPR's anchor
+        prompts = (load_reward_prompts(*stored, cast(FBCPRModel, ckpt.model), ckpt.path).z
+                   if stored is not None else None)
+        self.agent.warm_started(sample, prompts)
 
     def _resume(self) -> None:
         """Continue from the latest checkpoint. Every rank loads the learner state (model, targets, optimisers,

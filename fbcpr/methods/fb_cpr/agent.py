@@ -373,22 +373,35 @@ class FBCPRAgent:
         }
 
     @torch.no_grad()
-    def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
+    def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None,
+                     stored_prompts: dict[str, np.ndarray] | None = None) -> None:
         """After a warm start loaded weights into `model`: every target network := its online network, the actor
-        anchor (if any) := the loaded actor, and its reward prompts := those the loaded B infers from the loaded
-        model's reward-inference sample (`reward_sample()` reads it)."""
+        anchor (if any) := the loaded actor, and each held reward prompt := the loaded model's stored prompt for
+        that task where it stores one (the z its `prompt --reward` plays, refined at export or not), else the z the
+        loaded B infers from the loaded model's reward-inference sample (`reward_sample()` reads it)."""
         for k in TARGETS:
             self.targets[k].load_state_dict(getattr(self.model, k).state_dict())
         if self.anchor is not None:
             self.anchor.hold(self.model)
-        if self.held_rewards:
+        if not self.held_rewards:
+            return
+        stored = {k: v for k, v in (stored_prompts or {}).items() if k in self.held_rewards}
+        infer = {k: fn for k, fn in self.held_rewards.items() if k not in stored}
+        inferred: dict[str, Tensor] = {}
+        if infer:
             sample = reward_sample() if reward_sample is not None else None
             if sample is None:
                 raise ConfigError("agent.anchor_rewards: the --init-from checkpoint has no reward-inference sample, "
-                                  "so there are no reward prompts to hold")
-            # anchor_rewards needs anchor_actor (the config checks it), and the anchor then holds a prompt per task
-            assert self.anchor is not None and self.anchor.prompts is not None
-            self.anchor.prompts.copy_(reward_prompts(self.model, sample, self.held_rewards))
+                                  f"so there are no reward prompts to hold for {', '.join(infer)}")
+            inferred = dict(zip(infer, reward_prompts(self.model, sample, infer)))
+        # anchor_rewards needs anchor_actor (the config checks it), and the anchor then holds a prompt per task
+        assert self.anchor is not None and self.anchor.prompts is not None
+        prompts = self.anchor.prompts
+        for i, name in enumerate(self.held_rewards):
+            prompts[i] = torch.as_tensor(stored[name], dtype=prompts.dtype) if name in stored else inferred[name]
+        if stored:
+            self.notices.append(f"agent.anchor_rewards: {len(stored)} of {len(self.held_rewards)} held at the loaded "
+                                f"model's stored prompts ({', '.join(stored)}), the rest at the z's its B infers")
 
     @torch.no_grad()
     def soft_update(self) -> None:

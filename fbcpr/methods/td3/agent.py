@@ -141,7 +141,8 @@ class TD3Agent:
         return LazyMetrics(values, metrics)
 
     @torch.no_grad()
-    def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
+    def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None,
+                     stored_prompts: dict[str, np.ndarray] | None = None) -> None:
         self.target_critic.load_state_dict(self.model.critic.state_dict())
 
     # ------------------------------------------------------------------------------------- state
