@@ -400,8 +400,9 @@ class FBCPRAgent:
         for i, name in enumerate(self.held_rewards):
             prompts[i] = torch.as_tensor(stored[name], dtype=prompts.dtype) if name in stored else inferred[name]
         if stored:
+            rest = ", the rest at the z's its B infers" if infer else ""
             self.notices.append(f"agent.anchor_rewards: {len(stored)} of {len(self.held_rewards)} held at the loaded "
-                                f"model's stored prompts ({', '.join(stored)}), the rest at the z's its B infers")
+                                f"model's stored prompts ({', '.join(stored)}){rest}")
 
     @torch.no_grad()
     def soft_update(self) -> None:
