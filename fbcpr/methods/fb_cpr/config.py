@@ -36,8 +36,9 @@ class AgentConfig(MethodConfig):
     # demonstration states, under their own ER_FB latents, toward the loaded actor's (scaled like action_penalty)
     freeze_backward: bool = _f(False)
     anchor_actor: float = _f(0.0, NON_NEGATIVE)
-    # reward tasks whose prompts the anchor holds as well: the batch's states under each task's z, inferred once
-    # through the frozen B from the loaded model's reward-inference sample (needs freeze_backward and anchor_actor)
+    # reward tasks whose prompts the anchor holds as well: the batch's states under each task's z, the loaded model's
+    # stored prompt where it has one, else inferred once through the frozen B from its reward-inference sample
+    # (needs freeze_backward and anchor_actor)
     anchor_rewards: list[str] = _f([])
     # clips (shell-style patterns on clip names) whose windows the anchor leaves free: a new skill's demonstrations,
     # which a continued run is to learn rather than hold at the loaded actor (needs anchor_actor)
