@@ -129,7 +129,7 @@ def test_bare_observations_cannot_be_refined(bfm, clip):
 def test_cli_refines_and_prints_its_cost(ckpt, clip, tmp_path):
     path, video = save_clip(clip, tmp_path / "arm_rise.npz"), tmp_path / "track.mp4"
     args = ["track", str(ckpt), str(path), "--refine", "3", "--refine-rounds", "1", "--refine-position-weight", "5",
-            "--refine-window", "4", "--refine-horizon", "5"]
+            "--refine-leads", "2", "--refine-lookaheads", "1,4", "--refine-window", "4", "--refine-horizon", "5"]
     res = CliRunner().invoke(app, args + (["--video", str(video)] if renderer_available() else []))
     assert res.exit_code == 0, res.output
     if renderer_available():  # the states the search executed, rendered beside the reference
@@ -144,3 +144,7 @@ def test_cli_refines_and_prints_its_cost(ckpt, clip, tmp_path):
     assert float(line.group(2)) == pytest.approx(10 / 30, abs=0.05) and float(line.group(3)) > 0
     bad = CliRunner().invoke(app, args[:-1] + ["2"])
     assert bad.exit_code != 0 and "horizon (2) must be at least the window (4)" in bad.output
+    bad = CliRunner().invoke(app, [a if a != "1,4" else "1,x" for a in args])
+    assert bad.exit_code != 0 and "--refine-lookaheads" in bad.output and "'1,x'" in bad.output
+    bad = CliRunner().invoke(app, [a if a != "2" else "0" for a in args])
+    assert bad.exit_code != 0 and "leads must be positive integers" in bad.output

@@ -80,6 +80,15 @@ def comma_names(values: str | list[str] | None) -> list[str]:
     return [n.strip() for t in texts for n in t.split(",") if n.strip()]
 
 
+def comma_ints(text: str | None, option: str) -> tuple[int, ...]:
+    """Integers given comma-separated in one option (`--refine-leads 2,4,8`); a bad entry is an error naming
+    the option."""
+    try:
+        return tuple(int(n) for n in comma_names(text))
+    except ValueError:
+        raise typer.BadParameter(f"{option}: expected comma-separated integers, got {text!r}") from None
+
+
 def checkpoint_sources(arg: str, value: str | Path | None) -> list[tuple[str, Path]]:
     """The local folders a checkpoint argument reads, as (argument, path) pairs for
     `fbcpr.core.paths.check_output_folder`: the path given (a run directory, a pointer file) and the checkpoint it

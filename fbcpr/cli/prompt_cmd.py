@@ -10,7 +10,16 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from fbcpr.cli.common import MODEL_HELP, choose_model, cli_errors, console, err_console, model_and, progress
+from fbcpr.cli.common import (
+    MODEL_HELP,
+    choose_model,
+    cli_errors,
+    comma_ints,
+    console,
+    err_console,
+    model_and,
+    progress,
+)
 from fbcpr.eval.rollout import Step
 from fbcpr.eval.rollout import rollout as step_through
 
@@ -286,6 +295,12 @@ def track_command(
     position_weight: float = typer.Option(0.0, "--refine-position-weight", min=0.0,
                                           help="Weight of the per-step body-position error (metres) added to the "
                                                "search's d_smpl cost."),
+    leads: str | None = typer.Option(None, "--refine-leads", metavar="K,...",
+                                     help="Also start each window's search from the B-given z's this many steps "
+                                          "ahead (comma-separated, e.g. 2,4,8: for a body that lags the clip)."),
+    lookaheads: str | None = typer.Option(None, "--refine-lookaheads", metavar="L,...",
+                                          help="And from the B-given z's of these lookahead lengths "
+                                               "(comma-separated, e.g. 1,2,4,16)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the search's candidate draws."),
 ) -> None:
     """Track a clip with one z per step and print tracking success (d_smpl <= 0.5 throughout), EMD and the
@@ -300,7 +315,8 @@ def track_command(
 
     ckpt, clip_path = model_and(args, "CLIP")
     settings = Receding(candidates=refine, rounds=rounds, window=window, horizon=horizon, seed=seed,
-                        position_weight=position_weight)
+                        position_weight=position_weight, leads=comma_ints(leads, "--refine-leads"),
+                        lookaheads=comma_ints(lookaheads, "--refine-lookaheads"))
     if refine:
         settings.check()  # before any model is loaded or frame simulated
     if video is not None:

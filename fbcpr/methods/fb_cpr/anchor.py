@@ -8,9 +8,9 @@ demonstration windows, so the anchor penalises the actor for moving its mean on 
 latents, and leaves it free elsewhere: on fall and push states, and under reward prompts. The reward tasks were then
 what a held run still lost, so `agent.anchor_rewards` names reward tasks whose prompts the anchor holds too: the
 batch's states under each task's z as a reward prompt of the loaded model gives it: its stored prompt where it has
-one (refined at export, possibly), else inferred once, through the frozen B, from its reward-inference sample. A run that adds demonstrations of a new skill names their
-clips in `agent.anchor_free`: the anchor leaves their windows free, or it would hold the actor at the loaded model's
-behaviour on the very states the run is to teach.
+one (refined at export, possibly), else inferred once, through the frozen B, from its reward-inference sample. A
+run that adds demonstrations of a new skill names their clips in `agent.anchor_free`: the anchor leaves their
+windows free, or it would hold the actor at the loaded model's behaviour on the very states the run is to teach.
 """
 from __future__ import annotations
 
