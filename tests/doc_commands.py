@@ -36,6 +36,7 @@ SHORT = {
     "prompt": ["--steps", "5"],
     "prompt --refine": ["--steps", "5", "--refine", "1", "--refine-starts", "1", "--refine-population", "2"],
     "track": [],
+    "track --refine": ["--refine", "4", "--refine-rounds", "1"],
     "eval": ["--episodes", "1", "--steps", "5"],
     # the behaviour checks read an episode's last second and half: two families of 2 s
     "eval --suite behaviours": ["--episodes", "1", "--steps", "60", "--tasks", "stand,get_up"],
