@@ -59,6 +59,15 @@ class TrackRenderer:
         self._renderer.update_scene(data, camera=CAMERA)
         return self._renderer.render()
 
+    def render_qpos(self, qpos: np.ndarray) -> np.ndarray:
+        """(N, height, width, 3) uint8 images of poses (N, nq), kinematically (no physics): a clip played back."""
+        data = mujoco.MjData(self.model)
+        out = []
+        for q in np.asarray(qpos):  # one scene per pose: MuJoCo's renderer is not batched
+            data.qpos[:] = q
+            out.append(self.render(data))
+        return np.stack(out)
+
     def close(self) -> None:
         self._renderer.close()
 

@@ -266,8 +266,6 @@ def render_cmd(
     stills: int = typer.Option(6, help="Number of evenly spaced frames in a .png strip."),
 ) -> None:
     """Play a clip back kinematically (no physics) from the tracking camera; write a video or a .png strip."""
-    import mujoco
-
     from humanoid_env.model import load_model  # first: it picks a headless GL backend before mujoco loads
     from humanoid_env.render import TrackRenderer, write_video
     from motions.clip import load_clip
@@ -275,16 +273,13 @@ def render_cmd(
     clip = load_clip(clip_path)
     strip = out.suffix.lower() == ".png"
     rows = np.linspace(0, clip.n_frames - 1, stills).round().astype(int) if strip else np.arange(clip.n_frames)
-    model = load_model()
-    data = mujoco.MjData(model)
-    renderer = TrackRenderer(model, height=height, width=width)
+    renderer = TrackRenderer(load_model(), height=height, width=width)
     frames = []
     try:
         with progress() as bar:
             task = bar.add_task(f"rendering {clip.name}", total=len(rows))
             for q in clip.qpos[rows]:
-                data.qpos[:] = q
-                frames.append(renderer.render(data))
+                frames.append(renderer.render_qpos(q[None])[0])
                 bar.advance(task)
     finally:
         renderer.close()

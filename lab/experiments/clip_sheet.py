@@ -21,19 +21,14 @@ TILE_W, TILE_H = 240, 180
 
 def sheet(paths: list[Path], labels: list[str], seconds: list[float]) -> Image.Image:
     """One row per clip, one tile per requested second (clamped to the clip's last frame)."""
-    import mujoco  # after humanoid_env, which picks the headless GL backend
-
-    model = load_model()
-    data = mujoco.MjData(model)
-    renderer = TrackRenderer(model, TILE_H, TILE_W)
+    renderer = TrackRenderer(load_model(), TILE_H, TILE_W)
     out = Image.new("RGB", (TILE_W * len(seconds), TILE_H * len(paths)), "white")
     try:
         for row, (path, label) in enumerate(zip(paths, labels)):
             clip = load_clip(path)
-            for col, s in enumerate(seconds):
-                t = min(int(round(s * clip.fps)), clip.n_frames - 1)
-                data.qpos[:] = clip.qpos[t]
-                tile = Image.fromarray(renderer.render(data))
+            rows = [min(int(round(s * clip.fps)), clip.n_frames - 1) for s in seconds]
+            for col, (t, image) in enumerate(zip(rows, renderer.render_qpos(clip.qpos[rows]))):
+                tile = Image.fromarray(image)
                 ImageDraw.Draw(tile).text((4, 4), f"{label}  t={t / clip.fps:.1f}s", fill=(0, 0, 0))
                 out.paste(tile, (col * TILE_W, row * TILE_H))
     finally:

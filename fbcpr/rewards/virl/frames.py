@@ -79,22 +79,14 @@ class HumanoidFrames:
     collected transition once."""
 
     def __init__(self, size: int, plain: bool = True) -> None:
-        import mujoco
-
         from humanoid_env.model import load_model
         from humanoid_env.render import TrackRenderer
 
-        model = load_model()
-        self.data = mujoco.MjData(model)
-        self.renderer = TrackRenderer(model, size, size, plain=plain)
+        self.renderer = TrackRenderer(load_model(), size, size, plain=plain)
 
     def render(self, qpos: np.ndarray) -> np.ndarray:
         """Poses (N, nq) -> (N, size, size) uint8 grey frames (mean of R, G, B)."""
-        out = []
-        for q in np.asarray(qpos):  # the renderer is not batched
-            self.data.qpos[:] = q
-            out.append(self.renderer.render(self.data).mean(-1).round().astype(np.uint8))
-        return np.stack(out)
+        return self.renderer.render_qpos(qpos).mean(-1).round().astype(np.uint8)
 
     def close(self) -> None:
         self.renderer.close()
