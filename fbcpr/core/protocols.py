@@ -89,11 +89,11 @@ class OnlineAgent(Protocol):
         ...
 
     def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None,
-                     stored_prompts: dict[str, np.ndarray] | None = None) -> None:
+                     stored_prompts: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
         """Called once after a warm start loaded another run's weights into `model`: every target network := its
         online network, and whatever else the agent derives from the loaded model. `reward_sample()` reads the
-        loaded checkpoint's reward-inference sample (None where it has none), and `stored_prompts` are its stored
-        reward prompts by task (checked against its weights), for an agent that needs them."""
+        loaded checkpoint's reward-inference sample (None where it has none), and `stored_prompts()` its stored reward
+        prompts by task (checked against its weights; None where it has none), for an agent that needs them."""
         ...
 
     def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:

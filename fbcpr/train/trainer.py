@@ -644,10 +644,11 @@ class Trainer:
             if self._kept_sample is None:
                 raise ConfigError(f"train.keep_reward_sample: the --init-from checkpoint {ckpt.path} has no "
                                   "reward-inference sample to keep")
-        stored = ckpt.reward_prompts() if getattr(self.agent, "held_rewards", None) else None  # FB-CPR's anchor
-        prompts = (load_reward_prompts(*stored, cast(FBCPRModel, ckpt.model), ckpt.path).z
-                   if stored is not None else None)
-        self.agent.warm_started(sample, prompts)
+        def stored_prompts() -> dict[str, np.ndarray] | None:  # checked against the loaded weights, when read
+            stored = ckpt.reward_prompts()
+            return None if stored is None else load_reward_prompts(*stored, cast(FBCPRModel, ckpt.model), ckpt.path).z
+
+        self.agent.warm_started(sample, stored_prompts)
 
     def _resume(self) -> None:
         """Continue from the latest checkpoint. Every rank loads the learner state (model, targets, optimisers,

@@ -374,18 +374,20 @@ class FBCPRAgent:
 
     @torch.no_grad()
     def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None,
-                     stored_prompts: dict[str, np.ndarray] | None = None) -> None:
+                     stored_prompts: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
         """After a warm start loaded weights into `model`: every target network := its online network, the actor
         anchor (if any) := the loaded actor, and each held reward prompt := the loaded model's stored prompt for
         that task where it stores one (the z its `prompt --reward` plays, refined at export or not), else the z the
-        loaded B infers from the loaded model's reward-inference sample (`reward_sample()` reads it)."""
+        loaded B infers from the loaded model's reward-inference sample (`reward_sample()` and `stored_prompts()`
+        read them)."""
         for k in TARGETS:
             self.targets[k].load_state_dict(getattr(self.model, k).state_dict())
         if self.anchor is not None:
             self.anchor.hold(self.model)
         if not self.held_rewards:
             return
-        stored = {k: v for k, v in (stored_prompts or {}).items() if k in self.held_rewards}
+        loaded = stored_prompts() if stored_prompts is not None else None
+        stored = {k: v for k, v in (loaded or {}).items() if k in self.held_rewards}
         infer = {k: fn for k, fn in self.held_rewards.items() if k not in stored}
         inferred: dict[str, Tensor] = {}
         if infer:

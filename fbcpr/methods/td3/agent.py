@@ -142,7 +142,7 @@ class TD3Agent:
 
     @torch.no_grad()
     def warm_started(self, reward_sample: Callable[[], dict[str, np.ndarray] | None] | None = None,
-                     stored_prompts: dict[str, np.ndarray] | None = None) -> None:
+                     stored_prompts: Callable[[], dict[str, np.ndarray] | None] | None = None) -> None:
         self.target_critic.load_state_dict(self.model.critic.state_dict())
 
     # ------------------------------------------------------------------------------------- state
