@@ -12,7 +12,7 @@ from fbcpr.core.config import config_from_dict
 from fbcpr.core.errors import ConfigError
 from fbcpr.train.buffer import FRAME, ReplayBuffer, transition_specs
 from fbcpr.train.device_batches import DeviceBatches
-from fbcpr.train.resources import check_memory, memory_bytes
+from fbcpr.train.resources import check_memory, check_model_memory, memory_bytes
 from fbcpr.train.trainer import Trainer
 from motions.clip import from_qpos
 from motions.library import MotionLibrary
@@ -158,9 +158,10 @@ def test_sequence_rewards_and_a_copy_that_cannot_fit_are_config_errors(tmp_path)
     row, copy_row = ReplayBuffer.bytes_needed(1, specs), DeviceBatches.bytes_needed(1, specs, FIELDS)
     cfg.train.buffer_capacity = int(memory_bytes(CPU) / (row + copy_row / 2))
     with pytest.raises(ConfigError, match="^train.device_buffer: its copy of the replay buffer needs"):
-        check_memory(cfg, specs, tmp_path, CPU)
+        check_memory(cfg, specs, check_model_memory(cfg, CPU), tmp_path, CPU)
     cfg.train.device_buffer = False
-    assert check_memory(cfg, specs, tmp_path, CPU) is False                  # the buffer alone fits, in memory
+    model = check_model_memory(cfg, CPU)
+    assert check_memory(cfg, specs, model, tmp_path, CPU) is False                  # the buffer alone fits, in memory
     # a video reward's frames are part of every transition: 64x64 of them no longer fit at that capacity
     with pytest.raises(ConfigError, match="^train.buffer_capacity: the replay buffer needs"):
-        check_memory(cfg, {**specs, FRAME: (64, 64)}, tmp_path, CPU)
+        check_memory(cfg, {**specs, FRAME: (64, 64)}, model, tmp_path, CPU)

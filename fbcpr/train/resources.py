@@ -44,18 +44,18 @@ def check_model_memory(cfg: Config, device: torch.device, copies: int = 1) -> tu
     return params, need
 
 
-def check_memory(cfg: Config, specs: dict[str, tuple[int, ...]], out: Path, device: torch.device,
-                 copies: int = 1) -> bool:
-    """The model's and the replay buffer's memory, the buffer of exactly the fields it will hold (`specs`, a
-    video reward's frames included), checked before the buffer is allocated: ConfigError naming the key to lower
-    when they cannot fit, instead of an allocation failing (or the OOM killer striking) minutes later;
-    CheckpointError when the disk at `out` cannot hold one checkpoint. `copies`: processes of this run on this
-    machine (torchrun's ranks), each holding a model and a replay shard. Returns whether the buffer is
-    memory-mapped (over train.buffer_memmap_mb)."""
+def check_memory(cfg: Config, specs: dict[str, tuple[int, ...]], model: tuple[int, int], out: Path,
+                 device: torch.device, copies: int = 1) -> bool:
+    """The replay buffer's memory beside the model's (`model`: `check_model_memory`'s parameters and bytes), the
+    buffer of exactly the fields it will hold (`specs`, a video reward's frames included), checked before the buffer
+    is allocated: ConfigError naming the key to lower when they cannot fit, instead of an allocation failing (or the
+    OOM killer striking) minutes later; CheckpointError when the disk at `out` cannot hold one checkpoint. `copies`:
+    processes of this run on this machine (torchrun's ranks), each holding a model and a replay shard. Returns
+    whether the buffer is memory-mapped (over train.buffer_memmap_mb)."""
     tc = cfg.train
     obs_dim = cfg.model.obs_dim
     assert obs_dim is not None, "check_memory: set model.obs_dim first"
-    params, need = check_model_memory(cfg, device, copies)
+    params, need = model
     have = memory_bytes(device)
     nq, nv = specs["qpos"][0], specs["qvel"][0]
     buffer = ReplayBuffer.bytes_needed(tc.buffer_capacity, specs) * copies

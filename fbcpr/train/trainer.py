@@ -138,7 +138,7 @@ class Trainer:
         self.cfg = cfg = replace(cfg, model=replace(cfg.model, obs_dim=b.obs_dim, action_dim=b.action_dim))
         if batch_config(cfg.agent).batch_size > tc.buffer_capacity:
             raise ConfigError("train.buffer_capacity: must be >= agent.batch_size")
-        check_model_memory(cfg, self.device, copies=r.local_world_size)  # before the agent allocates it
+        model_memory = check_model_memory(cfg, self.device, copies=r.local_world_size)  # before the agent is made
 
         random.seed(seed)
         np.random.seed(seed)
@@ -164,7 +164,7 @@ class Trainer:
                 raise ConfigError("train.engine: async workers do not render the frames this agent's video reward "
                                   "reads; use sync")
             specs[FRAME] = (frame_size, frame_size)
-        self._memmap_buffer = check_memory(cfg, specs, self.out, self.device, copies=r.local_world_size)
+        self._memmap_buffer = check_memory(cfg, specs, model_memory, self.out, self.device, copies=r.local_world_size)
         self.out.mkdir(parents=True, exist_ok=True)
         if r.is_main and (self.out / "checkpoints").is_dir():
             remove_stale_temporaries(self.out / "checkpoints")
