@@ -12,11 +12,14 @@
 #   3. engine    benchmarks/engine_speed.py --quick on the window's device: its RESULT line
 #   4. train     CONFIG for the seconds left, then SIGTERM (a final checkpoint). A window continues the last one
 #                on this machine: RUN's checkpoints with --resume, else the pack of the last window (RUN.pack,
-#                git-ignored under runs/) with --init-from, else from scratch, and says which
+#                git-ignored under runs/) with --init-from, else INIT_FROM, else from scratch, and says which.
+#                CLIP_PACK (lab/gpu/clip_pack.py) is first unpacked beside itself, for a clip set too large to carry
 #   5. pack      lab/gpu/pack.py: the checkpoint as float16 weights and reward states in parts of < 16 MiB, kept in
 #                RUN.pack for the next window and copied to $OUT with metrics.csv (at most 8 files, 64 MiB)
 #
-# Env: OUT (required), WINDOW_S (570: the whole call, within a 9.5-minute call), CONFIG
+# Env: OUT (required), WINDOW_S (570: the whole call, within a 9.5-minute call), INIT_FROM (a checkpoint, or
+#      `pretrained`, that a first window warm-starts from), CLIP_PACK (data/clips/NAME.pack.npz: the clips the config
+#      reads from data/clips/NAME, carried packed), CONFIG
 #      (fbcpr/configs/gpu-paper-S.yaml; paper-S's optimiser state does not travel in 64 MiB, so a window on a new
 #      machine continues from the packed weights, not the exact state), RUN (runs/window), PY (the Python to use).
 set -euo pipefail
@@ -103,8 +106,14 @@ elif compgen -G "$RUN.pack/*.tar.part*" > /dev/null; then
   init=$("$PY" lab/gpu/pack.py unpack "$RUN.pack" "$RUN.init" | tail -1)
   say "continuing: the last window's run is gone, its pack is here: a new run from its weights ($init)"
   args+=(--init-from "$("$PY" -c "import sys; from pathlib import Path; print(sorted(Path(sys.argv[1]).glob('step_*'))[-1])" "$RUN.init")")
+elif [ -n "${INIT_FROM:-}" ]; then
+  say "no earlier window on this machine: a new run warm-started from $INIT_FROM (--init-from)"
+  args+=(--init-from "$INIT_FROM")
 else
   say "no earlier window on this machine (neither $RUN nor $RUN.pack): starting from scratch"
+fi
+if [ -n "${CLIP_PACK:-}" ]; then
+  "$PY" lab/gpu/clip_pack.py unpack "$CLIP_PACK" "${CLIP_PACK%.pack.npz}" | tee -a "$LOG"
 fi
 train_s=$(($(left) - PACK_TAIL))
 say "training for $train_s s: fbcpr train $CONFIG --out $RUN ${args[*]}"

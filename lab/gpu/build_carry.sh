@@ -3,7 +3,9 @@
 #   .whl/                  manylinux wheels, for the device's Python, of what its image lacks: mujoco (the
 #                          bindings in mujoco-core; the meta package's viewer and OpenGL deps are left out),
 #                          gymnasium and its deps, setuptools (builds fbcpr offline), requirements.txt (what to install)
-#   data/clips/deepmimic/  the DeepMimic clips (`fbcpr motions import`, cached after the first time)
+#   data/clips/deepmimic/  the DeepMimic clips (`fbcpr motions import`, cached after the first time); or, with
+#                          CLIP_PACK=data/clips/NAME.pack.npz, the clips of data/clips/NAME packed as one file
+#                          (lab/gpu/clip_pack.py; gpu_window.sh unpacks it there), for a set too large to carry
 # Then prints what the GPU run copies (tree + carry) and fails above MAX_MIB.
 # Env: DEVICE_PY (3.12), WHEELS (.whl), SHARED (../shared), MAX_MIB (60), CLIPS (data/clips/deepmimic), SYNTHETIC.
 set -euo pipefail
@@ -41,15 +43,19 @@ done > "$WHEELS/requirements.txt"
 echo "wheels for Python $DEVICE_PY ($abi) in $WHEELS:"
 sed 's/^/  /' "$WHEELS/requirements.txt"
 
-if ! ls "$SHARED"/mocap/deepmimic/motions/*.txt > /dev/null 2>&1; then
+if [ -n "${CLIP_PACK:-}" ]; then
+  python lab/gpu/clip_pack.py pack "${CLIP_PACK%.pack.npz}" "$CLIP_PACK"
+  CLIPS=$CLIP_PACK
+elif ! ls "$SHARED"/mocap/deepmimic/motions/*.txt > /dev/null 2>&1; then
   echo "no DeepMimic motions in $SHARED/mocap/deepmimic/motions" >&2
   exit 1
+else
+  nice -n 19 fbcpr motions import "$SHARED"/mocap/deepmimic/motions/*.txt --out "$CLIPS" > /dev/null
+  if [ -n "${SYNTHETIC:-}" ] && ! ls "$CLIPS"/synthetic_*.npz > /dev/null 2>&1; then  # the recipe's synthetic clips
+    fbcpr motions synthetic --out "$CLIPS" > /dev/null
+  fi
+  echo "clips: $(ls "$CLIPS"/*.npz | wc -l) in $CLIPS"
 fi
-nice -n 19 fbcpr motions import "$SHARED"/mocap/deepmimic/motions/*.txt --out "$CLIPS" > /dev/null
-if [ -n "${SYNTHETIC:-}" ] && ! ls "$CLIPS"/synthetic_*.npz > /dev/null 2>&1; then  # the recipe's synthetic clips
-  fbcpr motions synthetic --out "$CLIPS" > /dev/null
-fi
-echo "clips: $(ls "$CLIPS"/*.npz | wc -l) in $CLIPS"
 
 # What the GPU run copies: tracked files, untracked files git does not ignore, and the carried paths.
 bytes() { du -cb "$@" 2>/dev/null | tail -n 1 | cut -f 1; }
