@@ -77,6 +77,8 @@ def test_export_interpolate_writes_the_mixed_weights(pair, tmp_path):
     for key in expected:
         torch.testing.assert_close(got[key], expected[key], rtol=1e-6, atol=1e-6)
     assert len(BFM.load(out).reward_buffer["qpos"]) == 16
+    held = len(BFM.load(pair[1]).reward_buffer["qpos"])
+    assert f"a seeded 16 of the {held:,} kept (--reward-samples)" in " ".join(res.output.split())
     assert "fbcpr/configs/own-states.yaml" in res.output   # the mix's states are borrowed: how to make its own
 
 

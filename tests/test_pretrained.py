@@ -81,6 +81,8 @@ REFINED = {"crouch-0": (5, 16, 8), "move-ego-0-4": (15, 16, 16), "raisearms-h-h"
 #: those whose search started from a given z (export --refine-from: a screened z, a demonstration's, or the
 #: previous weights' refined z), not from the zero-shot z
 STARTED_FROM = ("crouch-0", "raisearms-h-h", "rotate-z-5-0.8", "sitonground")
+#: the search seed of each refined prompt: 3, but hands high, searched again for the last stage's weights
+SEARCH_SEED = {"raisearms-h-h": 7604}
 
 
 def test_the_shipped_prompts_were_stored_for_todays_formulas():
@@ -106,6 +108,6 @@ def test_five_shipped_prompts_are_refined_and_keep_their_zero_shot_z():
         assert ("start" in record) == (task in STARTED_FROM), task
         assert 0.8 < z @ start / bfm.z_dim < 0.99, task  # a nearby z, not the one the search started from
         assert (record["generations"], record["population"], record["starts"]) == REFINED[task], task
-        assert (record["steps"], record["seed"]) == (300, 3), task
+        assert (record["steps"], record["seed"]) == (300, SEARCH_SEED.get(task, 3)), task
         # the mean reward per step on its search starts; a given start already does some of the behaviour
         assert record["score"] > record["score0"] + (0.05 if task in STARTED_FROM else 0.3), task

@@ -134,6 +134,9 @@ def export_command(
         with console.status("exporting the actor and B to ONNX"):
             path = export_onnx(bfm, out)
     else:
+        held = len(bfm.reward_buffer["qpos"]) if bfm.reward_buffer is not None else 0
+        if held > reward_samples:  # said, since re-exporting an exported model would drop its states unnoticed
+            console.print(f"reward states: a seeded {reward_samples:,} of the {held:,} kept (--reward-samples)")
         path = bfm.save(out, reward_samples=reward_samples, half=half, states_only=states_only)
     sizes = {p.name: p.stat().st_size for p in sorted(path.iterdir())}
     for name, size in sizes.items():
