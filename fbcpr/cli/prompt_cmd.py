@@ -100,18 +100,14 @@ def rollout(bfm: Any, zs: np.ndarray, seed: int = 0, start: tuple[np.ndarray, np
 
 
 def _reference_renderer(env: Any, clip: Any) -> Any:
-    """frame(t) of the reference clip's state at step t (clamped to its last frame), same camera and size."""
-    import mujoco
-
+    """frame(t) of the reference clip's pose at step t (clamped to its last frame), same camera and size."""
     from humanoid_env.render import TrackRenderer
 
     renderer = TrackRenderer(env.model, *env._size)
-    data = mujoco.MjData(env.model)
 
     def frame(t: int) -> np.ndarray:
         i = min(t, clip.n_frames - 1)
-        data.qpos[:], data.qvel[:] = clip.qpos[i], clip.qvel[i]
-        return renderer.render(data)
+        return renderer.render_qpos(clip.qpos[i:i + 1])[0]
 
     return frame
 

@@ -528,18 +528,15 @@ def write_sheets(fams: Sequence[Family], runs: dict[str, AgentRun], out: Path, f
     """One PNG per family: a row per agent (the goal family: a row per pose in `SHEET_POSES` for the judged
     agent, then the floors), episode 0 from the family's own start, `frames` frames from start to end. Without an
     OpenGL renderer, says why instead."""
-    import mujoco
     from PIL import Image, ImageDraw
 
     from humanoid_env.model import load_model
     from humanoid_env.render import TrackRenderer
 
-    model = load_model()
     try:
-        renderer = TrackRenderer(model, TILE[1], TILE[0])
+        renderer = TrackRenderer(load_model(), TILE[1], TILE[0])
     except RuntimeError as err:
         return f"no contact sheets: {err}"
-    data = mujoco.MjData(model)
     folder = out / "behaviours"
     folder.mkdir(parents=True, exist_ok=True)
     judged = next(iter(runs))
@@ -561,9 +558,9 @@ def write_sheets(fams: Sequence[Family], runs: dict[str, AgentRun], out: Path, f
             for r, (label, qpos) in enumerate(rows):
                 y = r * (TILE[1] + 18)
                 draw.text((4, y + 2), label, fill=(255, 255, 255))
-                for c, t in enumerate(np.linspace(0, len(qpos) - 1, frames).round().astype(int)):
-                    data.qpos[:] = qpos[t]
-                    tile = Image.fromarray(renderer.render(data))
+                steps = np.linspace(0, len(qpos) - 1, frames).round().astype(int)
+                for c, (t, image) in enumerate(zip(steps, renderer.render_qpos(qpos[steps]))):
+                    tile = Image.fromarray(image)
                     ImageDraw.Draw(tile).text((4, 4), f"{t / CONTROL_HZ:.1f} s  pelvis {qpos[t, 2]:.2f} m",
                                               fill=(255, 255, 0))
                     sheet.paste(tile, (c * TILE[0], y + 18))
