@@ -47,6 +47,7 @@ class TrackRenderer:
                 "is first imported (importing humanoid_env first picks egl on headless Linux)."
             ) from err
         self.model = model
+        self._poses = mujoco.MjData(model)  # render_qpos's scratch state, made once: it is called per frame
         if plain:
             for flag in PLAIN_OFF:
                 self._renderer.scene.flags[flag] = 0
@@ -61,11 +62,10 @@ class TrackRenderer:
 
     def render_qpos(self, qpos: np.ndarray) -> np.ndarray:
         """(N, height, width, 3) uint8 images of poses (N, nq), kinematically (no physics): a clip played back."""
-        data = mujoco.MjData(self.model)
         out = []
         for q in np.asarray(qpos):  # one scene per pose: MuJoCo's renderer is not batched
-            data.qpos[:] = q
-            out.append(self.render(data))
+            self._poses.qpos[:] = q
+            out.append(self.render(self._poses))
         return np.stack(out)
 
     def close(self) -> None:
