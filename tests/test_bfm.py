@@ -137,11 +137,15 @@ def test_save_and_load_round_trip(bfm, tmp_path):
 
 def test_saved_config_holds_paths_under_the_working_directory_relative(bfm, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("FBCPR_DATA", raising=False)
     cfg = copy.deepcopy(bfm.config)
-    cfg.env.motions = str(tmp_path / "data" / "clips")
+    cfg.env.motions = str(tmp_path / "mine" / "clips")
     out = BFM(bfm.model, cfg, reward_buffer=bfm.reward_buffer).save("shared")
-    assert yaml.safe_load((out / "config.yaml").read_text())["env"]["motions"] == "data/clips"
-    assert cfg.env.motions == str(tmp_path / "data" / "clips")  # the model's own config is left as it was
+    assert yaml.safe_load((out / "config.yaml").read_text())["env"]["motions"] == "mine/clips"
+    assert cfg.env.motions == str(tmp_path / "mine" / "clips")  # the model's own config is left as it was
+    cfg.env.motions = str(tmp_path / "data" / "clips")  # the data directory (./data): named as the configs name it
+    out = BFM(bfm.model, cfg, reward_buffer=bfm.reward_buffer).save("shared")
+    assert yaml.safe_load((out / "config.yaml").read_text())["env"]["motions"] == "$FBCPR_DATA/clips"
     cfg.env.motions = "/elsewhere/clips"  # outside the working directory: nothing to make relative to
     out = BFM(bfm.model, cfg, reward_buffer=bfm.reward_buffer).save("shared")
     assert yaml.safe_load((out / "config.yaml").read_text())["env"]["motions"] == "/elsewhere/clips"

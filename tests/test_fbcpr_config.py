@@ -2,9 +2,12 @@
 from pathlib import Path
 
 import pytest
+import yaml
 
+from fbcpr.core.checkpoint import load_checkpoint, save_checkpoint
 from fbcpr.core.config import config_from_dict, find_config, load_config
 from fbcpr.core.errors import ConfigError
+from fbcpr.core.registry import get_method
 from fbcpr.core.schema import PRESETS, dump_config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "fbcpr" / "configs"
@@ -100,6 +103,26 @@ def test_preset_then_overrides_and_roundtrip(tmp_path):
     p = tmp_path / "c.yaml"
     p.write_text(dump_config(cfg))
     assert load_config(p) == cfg
+
+
+def test_a_saved_run_names_its_clips_under_the_data_directory_wherever_it_is_read(tmp_path, monkeypatch):
+    """A run's config.yaml writes data-directory paths as `$FBCPR_DATA/...` (not this machine's folders), and
+    loading the checkpoint where FBCPR_DATA names another folder finds the clips there; other paths are kept."""
+    monkeypatch.setenv("FBCPR_DATA", str(tmp_path / "here"))
+    cfg = load_config(find_config("virl-walk"))
+    cfg.env.focus_motions, cfg.env.focus_prob = str(tmp_path / "own" / "rises"), 0.1
+    cfg.model.obs_dim, cfg.model.action_dim, cfg.model.hidden_dim = 8, 3, 32
+    model = get_method(cfg.algorithm).model(cfg.model)
+    ckpt = save_checkpoint(tmp_path / "run", model, cfg)
+    saved = yaml.safe_load((ckpt / "config.yaml").read_text())
+    assert saved["env"]["motions"] == "$FBCPR_DATA/clips/deepmimic/walk.npz"
+    assert saved["agent"]["virl"]["multitask"] == "$FBCPR_DATA/clips/deepmimic"
+    assert saved["env"]["focus_motions"] == str(tmp_path / "own" / "rises")
+    monkeypatch.setenv("FBCPR_DATA", str(tmp_path / "there"))
+    loaded = load_checkpoint(ckpt).config
+    assert loaded.env.motions == str(tmp_path / "there" / "clips" / "deepmimic" / "walk.npz")
+    assert loaded.agent.virl.multitask == str(tmp_path / "there" / "clips" / "deepmimic")
+    assert loaded.env.focus_motions == str(tmp_path / "own" / "rises")
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in CONFIGS.glob("*.yaml")))

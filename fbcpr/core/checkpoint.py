@@ -38,7 +38,7 @@ import yaml
 from safetensors.torch import load_file, save_file
 
 import fbcpr
-from fbcpr.core.config import config_from_dict, model_config_from_dict
+from fbcpr.core.config import config_from_dict, data_relative_config, expand_data_paths, model_config_from_dict
 from fbcpr.core.errors import ConfigError, FBCPRError
 from fbcpr.core.registry import DEFAULT_ALGORITHM, METHODS, env_kind, get_method
 from fbcpr.core.schema import Config, ModelConfig, config_to_dict, env_of
@@ -289,7 +289,8 @@ def save_checkpoint(
             put(PROMPTS_FILE, *reward_prompts)
         if replay_buffer is not None:
             put(REPLAY_FILE, *replay_buffer)
-        cfg_data = config_to_dict(config) if isinstance(config, Config) else {"model": config_to_dict(config)}
+        cfg_data = (config_to_dict(data_relative_config(config)) if isinstance(config, Config)
+                    else {"model": config_to_dict(config)})
         (tmp / CONFIG_FILE).write_text(yaml.safe_dump(cfg_data, sort_keys=False))
         seal(tmp, path, config.algorithm if isinstance(config, Config) else DEFAULT_ALGORITHM,
              _model_sizes(model), {"tensors": shapes})
@@ -488,7 +489,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
         data = yaml.safe_load((path / CONFIG_FILE).read_text())
         if isinstance(data, dict) and isinstance(data.get("env"), dict):
             data["env"].setdefault("action_mapping", LEGACY_ACTION_MAPPING)  # written before the option existed
-        config: Config | ModelConfig = (config_from_dict(data) if set(data) != {"model"}
+        config: Config | ModelConfig = (expand_data_paths(config_from_dict(data)) if set(data) != {"model"}
                                         else model_config_from_dict(data["model"]))
     except (yaml.YAMLError, ConfigError, TypeError, AttributeError) as e:
         raise CheckpointError(f"{path / CONFIG_FILE}: invalid config ({e})") from None

@@ -181,6 +181,27 @@ def resolve_path(value: str, base: Path) -> Path:
     return (base / Path(value).expanduser()).resolve()
 
 
+def data_relative_config(cfg: Config) -> Config:
+    """A copy whose paths under the data directory are written `$FBCPR_DATA/...`, as the shipped configs write
+    them, so that a saved run read on another machine (or with another FBCPR_DATA) finds its clips there."""
+    out = copy.deepcopy(cfg)
+    root = data_dir()
+    for part, key, value in _paths(out):
+        target = Path(value).expanduser()
+        if target.is_absolute() and target.is_relative_to(root):
+            setattr(part, key, f"${DATA_VAR}/{target.relative_to(root).as_posix()}".rstrip("/"))
+    return out
+
+
+def expand_data_paths(cfg: Config) -> Config:
+    """`cfg` with its `$FBCPR_DATA/...` paths under this machine's data directory (in place; other paths as
+    they are): the inverse of `data_relative_config` for a config read back from a checkpoint."""
+    for part, key, value in _paths(cfg):
+        if value.startswith(f"${DATA_VAR}") or value.startswith(f"${{{DATA_VAR}}}"):
+            setattr(part, key, str(resolve_path(value, Path("."))))
+    return cfg
+
+
 def _paths(cfg: Config) -> list[tuple[Any, str, str]]:
     """(section object, key, value) of every path `cfg` holds: the set fields marked `path` for its env, in every
     section, a method's and its rewards' included ("synthetic" names the built-in clips, not a path)."""
@@ -199,9 +220,10 @@ def _paths(cfg: Config) -> list[tuple[Any, str, str]]:
 
 
 def portable_config(cfg: Config, base: str | Path = ".") -> Config:
-    """A copy whose paths under `base` are relative to it, so that a checkpoint made to be shared does not carry
-    this machine's folders (paths elsewhere stay as they are: they were never portable)."""
-    out = copy.deepcopy(cfg)
+    """A copy whose paths under the data directory are `$FBCPR_DATA/...` and those under `base` relative to it, so
+    that a checkpoint made to be shared does not carry this machine's folders (paths elsewhere stay as they are:
+    they were never portable)."""
+    out = data_relative_config(cfg)
     root = Path(base).resolve()
     for part, key, value in _paths(out):
         target = Path(value).expanduser()
