@@ -56,6 +56,9 @@ def test_demo_prompts_the_pretrained_model(tmp_path):
     verdict = " ".join(summary["verdict"].split())
     for cannot in ("get up", "jump"):  # said plainly, not shown
         assert cannot in verdict, cannot
+    title = (PRETRAINED_DIR / "README.md").read_text().split("\n# ", 1)[1].splitlines()[0]
+    for data in ("DeepMimic", "CMU", "synthetic", "planned crouches"):  # the card's data, named alike in the demo
+        assert (data in title) == (data in verdict), data
     assert "\n\n\n" not in res.output  # no runs of blank lines
 
 

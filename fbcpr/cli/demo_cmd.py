@@ -23,8 +23,8 @@ from fbcpr.cli.common import cli_errors, console
 DEFAULT_CONFIG = "quickstart.yaml"
 STAND_PROMPT = "move-ego-0-0"
 #: One line on what the shipped model is, for the demo's verdict (its model card has the details).
-PRETRAINED_NOTE = ("FB-CPR with small networks, trained on the DeepMimic clips, the package's synthetic clips and two "
-                   "planned crouches")
+PRETRAINED_NOTE = ("FB-CPR with small networks, trained on the DeepMimic clips, CMU motion capture, the package's "
+                   "synthetic clips and two planned crouches")
 #: What the shipped model cannot do yet, as docs/results.md measures it; the demo says so instead of showing it.
 CANNOT_YET = ("It cannot yet get up from a fall or jump (under jump-2 its feet never leave the ground), and it "
               "reaches goal poses and tracks clips only loosely: docs/results.md has the numbers.")
