@@ -12,6 +12,7 @@ import dataclasses
 import difflib
 import os
 import typing
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -175,21 +176,26 @@ def load_config(path: str | Path) -> Config:
 def resolve_path(value: str, base: Path) -> Path:
     """A config path as a file system path: `$FBCPR_DATA/...` under the data directory, other relative paths
     under `base` (the config file's folder)."""
+    inside = _in_data_dir(value)
+    if inside is not None:
+        return data_dir() / inside
+    return (base / Path(value).expanduser()).resolve()
+
+
+def _in_data_dir(value: str) -> str | None:
+    """What follows `$FBCPR_DATA/` (or `${FBCPR_DATA}/`) in a config path, "" for the data directory itself, and
+    None for a path written any other way."""
     for prefix in (f"${DATA_VAR}", f"${{{DATA_VAR}}}"):
         if value == prefix or value.startswith(prefix + "/"):
-            return data_dir() / value[len(prefix):].lstrip("/")
-    return (base / Path(value).expanduser()).resolve()
+            return value[len(prefix):].lstrip("/")
+    return None
 
 
 def data_relative_config(cfg: Config) -> Config:
     """A copy whose paths under the data directory are written `$FBCPR_DATA/...`, as the shipped configs write
     them, so that a saved run read on another machine (or with another FBCPR_DATA) finds its clips there."""
     out = copy.deepcopy(cfg)
-    root = data_dir()
-    for part, key, value in _paths(out):
-        target = Path(value).expanduser()
-        if target.is_absolute() and target.is_relative_to(root):
-            setattr(part, key, f"${DATA_VAR}/{target.relative_to(root).as_posix()}".rstrip("/"))
+    _rewrite_under(out, data_dir(), lambda inside: f"${DATA_VAR}" if inside == "." else f"${DATA_VAR}/{inside}")
     return out
 
 
@@ -197,9 +203,18 @@ def expand_data_paths(cfg: Config) -> Config:
     """`cfg` with its `$FBCPR_DATA/...` paths under this machine's data directory (in place; other paths as
     they are): the inverse of `data_relative_config` for a config read back from a checkpoint."""
     for part, key, value in _paths(cfg):
-        if value.startswith(f"${DATA_VAR}") or value.startswith(f"${{{DATA_VAR}}}"):
-            setattr(part, key, str(resolve_path(value, Path("."))))
+        inside = _in_data_dir(value)
+        if inside is not None:
+            setattr(part, key, str(data_dir() / inside))
     return cfg
+
+
+def _rewrite_under(cfg: Config, root: Path, write: Callable[[str], str]) -> None:
+    """Every absolute path of `cfg` under `root` replaced (in place) by `write` of its part below `root`."""
+    for part, key, value in _paths(cfg):
+        target = Path(value).expanduser()
+        if target.is_absolute() and target.is_relative_to(root):
+            setattr(part, key, write(target.relative_to(root).as_posix()))
 
 
 def _paths(cfg: Config) -> list[tuple[Any, str, str]]:
@@ -224,11 +239,7 @@ def portable_config(cfg: Config, base: str | Path = ".") -> Config:
     that a checkpoint made to be shared does not carry this machine's folders (paths elsewhere stay as they are:
     they were never portable)."""
     out = data_relative_config(cfg)
-    root = Path(base).resolve()
-    for part, key, value in _paths(out):
-        target = Path(value).expanduser()
-        if target.is_absolute() and target.is_relative_to(root):
-            setattr(part, key, target.relative_to(root).as_posix())
+    _rewrite_under(out, Path(base).resolve(), lambda inside: inside)
     return out
 
 
